@@ -19,7 +19,7 @@ demo: $(STAMP)
 	$(PY) -m matfit demo --out demo_out
 
 test: $(STAMP)
-	$(PY) -m pytest -q -n0 tests 2>/dev/null || $(PY) -m pytest -q tests
+	$(PY) -m pytest -q tests
 
 bench: $(STAMP)
 	$(PY) benchmarks/run_all.py

@@ -1,0 +1,166 @@
+r"""Fresnel reflectance: exact dielectric, exact conductor (complex index) and Schlick.
+
+Each formula lives here once and is used by every model.
+
+References
+----------
+- M. Born, E. Wolf, *Principles of Optics*, 7th ed., Sec. 1.5.2 (dielectric) and 14.2 (metals).
+- M. Pharr, W. Jakob, G. Humphreys, *Physically Based Rendering*, 4th ed. (pbrt-v4), Sec. 9.3.
+- C. Schlick, "An Inexpensive BRDF Model for Physically-based Rendering", CGF 13(3), 1994.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+
+from ._math import safe_sqrt, sq
+
+__all__ = [
+    "fresnel_dielectric",
+    "fresnel_conductor",
+    "fresnel_schlick",
+    "fresnel_dielectric_average",
+]
+
+
+def fresnel_dielectric(cos_theta_i, eta):
+    r"""Unpolarized Fresnel reflectance of a smooth dielectric interface.
+
+    .. math::
+        r_\parallel = \frac{\eta\cos\theta_i - \cos\theta_t}{\eta\cos\theta_i + \cos\theta_t},\quad
+        r_\perp = \frac{\cos\theta_i - \eta\cos\theta_t}{\cos\theta_i + \eta\cos\theta_t},\quad
+        F = \tfrac12 (r_\parallel^2 + r_\perp^2)
+
+    with :math:`\sin\theta_t = \sin\theta_i / \eta`.
+
+    Parameters
+    ----------
+    cos_theta_i : array_like
+        Cosine of the incidence angle, in [-1, 1]. A negative value means the light arrives
+        from inside the medium; the relative index is then inverted (``eta -> 1/eta``).
+    eta : array_like
+        Relative index of refraction (inside / outside), > 0. Broadcasts against ``cos_theta_i``.
+
+    Returns
+    -------
+    jax.Array
+        Reflectance in [0, 1]; exactly 1 under total internal reflection.
+
+    Examples
+    --------
+    >>> from matfit.fresnel import fresnel_dielectric
+    >>> float(fresnel_dielectric(1.0, 1.5))  # normal incidence, ((1.5-1)/(1.5+1))**2
+    0.04...
+    """
+    c = jnp.clip(jnp.asarray(cos_theta_i), -1, 1)
+    eta = jnp.asarray(eta)
+    inside = c < 0
+    eta = jnp.where(inside, 1 / eta, eta)
+    c = jnp.abs(c)
+    sin2_t = (1 - c * c) / (eta * eta)
+    tir = sin2_t >= 1
+    cos_t = safe_sqrt(1 - sin2_t)
+    r_parl = (eta * c - cos_t) / (eta * c + cos_t)
+    r_perp = (c - eta * cos_t) / (c + eta * cos_t)
+    return jnp.where(tir, 1.0, 0.5 * (sq(r_parl) + sq(r_perp)))
+
+
+def fresnel_conductor(cos_theta_i, eta, k):
+    r"""Unpolarized Fresnel reflectance of a conductor with complex index :math:`\eta + i k`.
+
+    Written in real arithmetic (Born & Wolf 14.2):
+    :math:`a^2+b^2 = \sqrt{(\eta^2-k^2-\sin^2\theta)^2 + 4\eta^2k^2}`,
+    :math:`a = \sqrt{(a^2+b^2+\eta^2-k^2-\sin^2\theta)/2}`,
+
+    .. math::
+        R_s = \frac{a^2+b^2 - 2a\cos\theta + \cos^2\theta}{a^2+b^2 + 2a\cos\theta + \cos^2\theta},\quad
+        R_p = R_s\,\frac{\cos^2\theta(a^2+b^2) - 2a\cos\theta\sin^2\theta + \sin^4\theta}
+                       {\cos^2\theta(a^2+b^2) + 2a\cos\theta\sin^2\theta + \sin^4\theta}
+
+    and :math:`F = (R_s + R_p)/2`.
+
+    Parameters
+    ----------
+    cos_theta_i : array_like
+        Cosine of the incidence angle; its absolute value is used.
+    eta, k : array_like
+        Real and imaginary parts of the relative complex index (per channel, last axis),
+        ``eta > 0``, ``k >= 0``. With ``k = 0`` this equals :func:`fresnel_dielectric`.
+
+    Examples
+    --------
+    >>> from matfit.fresnel import fresnel_conductor
+    >>> import jax.numpy as jnp
+    >>> gold = fresnel_conductor(1.0, jnp.array([0.143, 0.374, 1.442]), jnp.array([3.983, 2.385, 1.603]))
+    >>> gold.shape
+    (3,)
+    """
+    c = jnp.clip(jnp.abs(jnp.asarray(cos_theta_i)), 0, 1)
+    eta = jnp.asarray(eta)
+    k = jnp.asarray(k)
+    cos2 = c * c
+    sin2 = 1 - cos2
+    t0 = sq(eta) - sq(k) - sin2
+    a2b2 = safe_sqrt(sq(t0) + 4 * sq(eta) * sq(k))
+    a = safe_sqrt(0.5 * (a2b2 + t0))
+    t1 = a2b2 + cos2
+    t2 = 2 * a * c
+    rs = (t1 - t2) / (t1 + t2)
+    t3 = cos2 * a2b2 + sq(sin2)
+    t4 = t2 * sin2
+    rp = rs * (t3 - t4) / (t3 + t4)
+    return 0.5 * (rs + rp)
+
+
+def fresnel_schlick(cos_theta_i, f0):
+    r"""Schlick's approximation :math:`F_0 + (1 - F_0)(1 - \cos\theta)^5`.
+
+    Parameters
+    ----------
+    cos_theta_i : array_like
+        Cosine of the incidence angle; its absolute value is used.
+    f0 : array_like
+        Reflectance at normal incidence, in [0, 1].
+
+    Examples
+    --------
+    >>> from matfit.fresnel import fresnel_schlick
+    >>> float(fresnel_schlick(0.0, 0.04))
+    1.0
+    """
+    c = jnp.clip(jnp.abs(jnp.asarray(cos_theta_i)), 0, 1)
+    m = 1 - c
+    m2 = m * m
+    return f0 + (1 - f0) * (m2 * m2 * m)
+
+
+def fresnel_dielectric_average(eta, n=64):
+    r"""Hemispherical (cosine-weighted) average :math:`2\int_0^1 F(\mu)\,\mu\,d\mu`.
+
+    Computed by Gauss-Legendre quadrature of order ``n``; under total internal reflection
+    (``eta < 1``) the part below the critical cosine :math:`\sqrt{1-\eta^2}` is integrated in
+    closed form so that the kink does not spoil convergence.
+
+    Parameters
+    ----------
+    eta : array_like
+        Relative index (inside / outside) seen by the incident light.
+    n : int
+        Quadrature order.
+
+    Examples
+    --------
+    >>> from matfit.fresnel import fresnel_dielectric_average
+    >>> round(float(fresnel_dielectric_average(1.5)), 4)
+    0.0918
+    """
+    eta = jnp.asarray(eta)
+    x, w = np.polynomial.legendre.leggauss(n)
+    x = jnp.asarray(0.5 * (x + 1), dtype=jnp.result_type(eta, float))
+    w = jnp.asarray(0.5 * w, dtype=x.dtype)
+    mu_c = safe_sqrt(1 - sq(jnp.minimum(eta, 1)))  # critical cosine (0 when eta >= 1)
+    mu = mu_c[..., None] + (1 - mu_c[..., None]) * x
+    f = fresnel_dielectric(mu, eta[..., None])
+    part = (1 - mu_c) * jnp.sum(w * f * mu, axis=-1)
+    return 2 * part + sq(mu_c)

@@ -1,0 +1,36 @@
+"""Microfacet normal distributions with Smith masking: GGX, Beckmann, normalized Blinn-Phong."""
+
+from ._base import ALPHA_MIN, MASKING_FORMS, AbstractDistribution
+from .beckmann import Beckmann
+from .blinn_phong import BlinnPhong
+from .ggx import GGX
+
+DISTRIBUTIONS = {"ggx": GGX, "beckmann": Beckmann, "blinn_phong": BlinnPhong}
+
+
+def make_distribution(name, alpha_x, alpha_y=None):
+    """Build a distribution by name (``"ggx"``, ``"beckmann"``, ``"blinn_phong"``).
+
+    Examples
+    --------
+    >>> from matfit.microfacet import make_distribution
+    >>> type(make_distribution("ggx", 0.2)).__name__
+    'GGX'
+    """
+    try:
+        cls = DISTRIBUTIONS[name]
+    except (KeyError, TypeError):
+        raise ValueError(f"distribution must be one of {sorted(DISTRIBUTIONS)}, got {name!r}") from None
+    return cls(alpha_x, alpha_y)
+
+
+__all__ = [
+    "ALPHA_MIN",
+    "MASKING_FORMS",
+    "DISTRIBUTIONS",
+    "AbstractDistribution",
+    "GGX",
+    "Beckmann",
+    "BlinnPhong",
+    "make_distribution",
+]

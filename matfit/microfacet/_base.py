@@ -1,0 +1,119 @@
+"""The abstract microfacet distribution: D, Smith Lambda, G1, G2, and sampling."""
+
+from __future__ import annotations
+
+import abc
+
+import equinox as eqx
+import jax.numpy as jnp
+import jax.scipy.special as jsp
+
+from .._math import COS_EPS, dot, flip_up, safe_div, sq
+
+#: Roughness values below this are clamped to it inside the distributions, so that D stays
+#: representable in float32 (D(n) = 1/(pi alpha^2) ~ 3e7). Below ALPHA_MIN use the smooth models.
+ALPHA_MIN = 1e-4
+
+MASKING_FORMS = ("separable", "height_correlated")
+
+
+def _as_alpha(a):
+    a = jnp.asarray(a)
+    if not jnp.issubdtype(a.dtype, jnp.floating):
+        a = a.astype(jnp.result_type(float))
+    return a
+
+
+class AbstractDistribution(eqx.Module):
+    r"""A microfacet normal distribution with Smith masking-shadowing.
+
+    Subclasses define :meth:`D`, :meth:`Lambda` and :meth:`sample_dcos` (and
+    :meth:`sample_visible` where an exact method exists). The projected-area normalization
+    :math:`\int D(m)\,(m\cdot n)\,d\omega_m = 1` holds for every subclass.
+
+    Attributes
+    ----------
+    alpha_x, alpha_y : jax.Array
+        The distribution's own width along x and y (equal when isotropic), > 0; values below
+        :data:`ALPHA_MIN` are clamped to it.
+    """
+
+    alpha_x: jnp.ndarray = eqx.field(converter=_as_alpha)
+    alpha_y: jnp.ndarray = eqx.field(converter=_as_alpha)
+
+    def __init__(self, alpha_x, alpha_y=None):
+        self.alpha_x = alpha_x
+        self.alpha_y = alpha_x if alpha_y is None else alpha_y
+
+    # -- the parts a distribution defines ---------------------------------------------------
+    @abc.abstractmethod
+    def D(self, m):
+        """Distribution of normals ``m`` (..., 3) -> (...); 0 for ``m_z <= 0``."""
+
+    @abc.abstractmethod
+    def Lambda(self, v):
+        """Smith's auxiliary function Lambda(v) for a direction ``v`` (..., 3) -> (...)."""
+
+    @abc.abstractmethod
+    def sample_dcos(self, u):
+        """Sample ``m`` with density ``D(m) m_z``; ``u`` (..., 2) -> ``m`` (..., 3)."""
+
+    def sample_visible(self, wo, u):
+        """Sample ``m`` from the distribution of normals visible from ``wo``."""
+        raise NotImplementedError(f"{type(self).__name__} has no visible-normal sampling; use sample_dcos")
+
+    has_visible_sampling = False
+
+    # -- shared machinery -------------------------------------------------------------------
+    def _alphas(self):
+        return jnp.maximum(self.alpha_x, ALPHA_MIN), jnp.maximum(self.alpha_y, ALPHA_MIN)
+
+    def _slope2(self, m):
+        """Stretched squared slope (mx^2/ax^2 + my^2/ay^2) / mz^2 for m_z > 0 (else inf-safe)."""
+        ax, ay = self._alphas()
+        mz2 = jnp.maximum(sq(m[..., 2]), COS_EPS * COS_EPS)
+        return (sq(m[..., 0] / ax) + sq(m[..., 1] / ay)) / mz2
+
+    def _a2tan2(self, v):
+        """Projected roughness times tan^2: (vx^2 ax^2 + vy^2 ay^2) / vz^2."""
+        ax, ay = self._alphas()
+        vz2 = jnp.maximum(sq(v[..., 2]), COS_EPS * COS_EPS)
+        return (sq(v[..., 0] * ax) + sq(v[..., 1] * ay)) / vz2
+
+    def G1(self, v, m):
+        r"""Smith masking :math:`\chi^+((v\cdot m)/(v\cdot n)) / (1 + \Lambda(v))`."""
+        chi = dot(v, m) * v[..., 2] > 0
+        return jnp.where(chi, 1 / (1 + self.Lambda(v)), 0)
+
+    def G2(self, wo, wi, m, form="separable"):
+        r"""Masking-shadowing of ``wo`` and ``wi`` by microfacets of normal ``m``.
+
+        ``form="separable"``: :math:`G_1(\omega_o, m)\,G_1(\omega_i, m)` (Smith product).
+        ``form="height_correlated"``: :math:`1/(1 + \Lambda_o + \Lambda_i)` for reflection and
+        :math:`B(1 + \Lambda_o, 1 + \Lambda_i)` (the Beta function) for transmission
+        (Heitz 2014, Eq. 99), both times the visibility indicators.
+        """
+        if form == "separable":
+            return self.G1(wo, m) * self.G1(wi, m)
+        if form != "height_correlated":
+            raise ValueError(f"masking form must be one of {MASKING_FORMS}, got {form!r}")
+        chi = (dot(wo, m) * wo[..., 2] > 0) & (dot(wi, m) * wi[..., 2] > 0)
+        lo = self.Lambda(wo)
+        li = self.Lambda(wi)
+        refl = wo[..., 2] * wi[..., 2] > 0
+        g_r = 1 / (1 + lo + li)
+        g_t = jnp.exp(jsp.betaln(1 + lo, 1 + li))
+        return jnp.where(chi, jnp.where(refl, g_r, g_t), 0)
+
+    def pdf_dcos(self, m):
+        """Density of :meth:`sample_dcos` over solid angle of ``m``: ``D(m) m_z``."""
+        return self.D(m) * jnp.maximum(m[..., 2], 0)
+
+    def pdf_visible(self, wo, m):
+        r"""Density of visible normals :math:`G_1(\omega_o, m)\max(0, \omega_o\cdot m) D(m)/\cos\theta_o`.
+
+        ``wo`` below the surface is mirrored to the upper side first (as in sampling).
+        """
+        w = flip_up(wo)
+        wz = w[..., 2]
+        return safe_div(self.G1(w, m) * jnp.maximum(dot(w, m), 0) * self.D(m), wz)

@@ -1,0 +1,70 @@
+r"""GGX / Trowbridge-Reitz distribution.
+
+.. math::
+    D(m) = \frac{1}{\pi\alpha_x\alpha_y\,(m_x^2/\alpha_x^2 + m_y^2/\alpha_y^2 + m_z^2)^2},\qquad
+    \Lambda(v) = \frac{-1 + \sqrt{1 + \alpha^2\tan^2\theta_v}}{2}
+
+with the projected roughness :math:`\alpha^2\tan^2\theta_v = (v_x^2\alpha_x^2 + v_y^2\alpha_y^2)/v_z^2`.
+
+References
+----------
+- T. S. Trowbridge, K. P. Reitz, JOSA 65(5), 1975.
+- B. Walter, S. Marschner, H. Li, K. Torrance, "Microfacet Models for Refraction through Rough
+  Surfaces", EGSR 2007.
+- E. Heitz, "Sampling the GGX Distribution of Visible Normals", JCGT 7(4), 2018.
+- J. Dupuy, A. Benyoub, "Sampling Visible GGX Normals with Spherical Caps", CGF 42(8), 2023.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+from .._math import flip_up, normalize, safe_sqrt, sq
+from ._base import AbstractDistribution
+
+
+class GGX(AbstractDistribution):
+    """GGX (Trowbridge-Reitz) microfacet distribution, isotropic or anisotropic.
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit.microfacet import GGX
+    >>> d = GGX(0.3)
+    >>> round(float(d.D(jnp.array([0.0, 0.0, 1.0]))), 4)  # 1 / (pi alpha^2)
+    3.5368
+    """
+
+    has_visible_sampling = True
+
+    def D(self, m):
+        ax, ay = self._alphas()
+        mz2 = sq(m[..., 2])
+        t = sq(m[..., 0] / ax) + sq(m[..., 1] / ay) + mz2
+        d = 1 / (jnp.pi * ax * ay * sq(t))
+        return jnp.where(m[..., 2] > 0, d, 0)
+
+    def Lambda(self, v):
+        return 0.5 * (jnp.sqrt(1 + self._a2tan2(v)) - 1)
+
+    def sample_dcos(self, u):
+        ax, ay = self._alphas()
+        u1 = u[..., 0]
+        phi = 2 * jnp.pi * u[..., 1]
+        r = safe_sqrt(u1 / jnp.maximum(1 - u1, 1e-12))  # slope radius for alpha = 1
+        sx = ax * r * jnp.cos(phi)
+        sy = ay * r * jnp.sin(phi)
+        return normalize(jnp.stack([-sx, -sy, jnp.ones_like(sx)], axis=-1))
+
+    def sample_visible(self, wo, u):
+        """Visible normals by the spherical-cap method of Dupuy & Benyoub (2023)."""
+        ax, ay = self._alphas()
+        w = flip_up(wo)
+        ws = normalize(jnp.stack([ax * w[..., 0], ay * w[..., 1], w[..., 2]], axis=-1))
+        phi = 2 * jnp.pi * u[..., 0]
+        z = (1 - u[..., 1]) * (1 + ws[..., 2]) - ws[..., 2]
+        s = safe_sqrt(1 - z * z)
+        c = jnp.stack([s * jnp.cos(phi), s * jnp.sin(phi), z], axis=-1)
+        h = c + ws
+        m = jnp.stack([ax * h[..., 0], ay * h[..., 1], jnp.maximum(h[..., 2], 0)], axis=-1)
+        return normalize(m)

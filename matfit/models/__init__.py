@@ -1,0 +1,19 @@
+"""BSDF models: one model per file, each an equinox Module with eval, pdf, sample and albedo."""
+
+from ._base import AbstractBSDF
+from ._microfacet import AbstractMicrofacetBSDF
+from .lambert import Lambert
+from .rough_conductor import RoughConductor
+from .rough_dielectric import RoughDielectric
+from .smooth_conductor import SmoothConductor
+from .smooth_dielectric import SmoothDielectric
+
+__all__ = [
+    "AbstractBSDF",
+    "AbstractMicrofacetBSDF",
+    "Lambert",
+    "RoughConductor",
+    "RoughDielectric",
+    "SmoothConductor",
+    "SmoothDielectric",
+]

@@ -1,0 +1,84 @@
+r"""Smooth dielectric: specular reflection and refraction (delta model).
+
+The :math:`\alpha \to 0` limit of :class:`RoughDielectric`. With :math:`F` the exact dielectric
+Fresnel at :math:`\cos\theta_o`, ``sample`` reflects with probability F (weight 1) and refracts
+by Snell's law with probability 1 - F (weight :math:`1/\eta_p^2`, the radiance scaling); under
+total internal reflection F = 1. The returned pdf is the discrete lobe probability; ``eval`` and
+``pdf`` are zero everywhere.
+
+Parameters
+----------
+eta : relative index inside/outside, > 0, differentiable. Output C = 1.
+
+References
+----------
+- M. Pharr, W. Jakob, G. Humphreys, *Physically Based Rendering*, 4th ed., Sec. 9.5.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+from .._math import COS_EPS, refract, sq
+from ..fresnel import fresnel_dielectric
+from ._base import AbstractBSDF
+from ._params import as_param, check_directions, check_range, check_u
+
+
+class SmoothDielectric(AbstractBSDF):
+    """Clear glass interface.
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit.models import SmoothDielectric
+    >>> wi, weight, pdf = SmoothDielectric(1.5).sample(jnp.array([0.0, 0.0, 1.0]), jnp.array([0.5, 0.0, 0.0]))
+    >>> [round(float(x), 6) for x in wi], round(float(pdf), 2)
+    ([0.0, 0.0, -1.0], 0.96)
+    """
+
+    is_delta = True
+    eta: jnp.ndarray
+
+    def __init__(self, eta):
+        check_range("SmoothDielectric", "eta", eta, 0.0, lo_open=True)
+        self.eta = as_param(eta)
+
+    @property
+    def channels(self):
+        return 1
+
+    def eval(self, wo, wi):
+        check_directions("SmoothDielectric.eval", wo=wo, wi=wi)
+        shape = jnp.broadcast_shapes(wo.shape, wi.shape)[:-1] + (1,)
+        return jnp.zeros(shape, jnp.result_type(wo, self.eta))
+
+    def pdf(self, wo, wi):
+        check_directions("SmoothDielectric.pdf", wo=wo, wi=wi)
+        return jnp.zeros(jnp.broadcast_shapes(wo.shape, wi.shape)[:-1], jnp.result_type(wo))
+
+    def energy_factor(self, wo, wi):
+        refl = wo[..., 2] * wi[..., 2] > 0
+        etap = jnp.where(wo[..., 2] > 0, self.eta, 1 / self.eta)
+        return jnp.where(refl, 1.0, sq(etap)) * jnp.ones_like(wo[..., 2])
+
+    def delta_albedo(self, wo):
+        ok = jnp.abs(wo[..., 2]) > COS_EPS
+        return jnp.where(ok, 1.0, 0.0).astype(wo.dtype)[..., None]
+
+    def sample(self, wo, u):
+        check_directions("SmoothDielectric.sample", wo=wo)
+        check_u("SmoothDielectric.sample", u, 3)
+        shape = jnp.broadcast_shapes(wo.shape, u.shape[:-1] + (3,))
+        wo = jnp.broadcast_to(wo, shape)
+        F = fresnel_dielectric(wo[..., 2], self.eta)
+        n = jnp.zeros_like(wo).at[..., 2].set(1)
+        wr = wo * jnp.array([-1, -1, 1], wo.dtype)
+        wt, _ = refract(wo, n, self.eta)
+        choose_r = u[..., 0] < F
+        etap = jnp.where(wo[..., 2] > 0, self.eta, 1 / self.eta)
+        wi = jnp.where(choose_r[..., None], wr, wt)
+        weight = jnp.where(choose_r, 1.0, 1 / sq(etap))
+        pdf = jnp.where(choose_r, F, 1 - F)
+        ok = jnp.abs(wo[..., 2]) > COS_EPS
+        return wi, jnp.where(ok, weight, 0)[..., None], jnp.where(ok, pdf, 0)
