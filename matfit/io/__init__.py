@@ -1,0 +1,59 @@
+"""Readers and writers of measured-BRDF files; every reader produces a :class:`matfit.table.Table`.
+
+``load(path)`` dispatches on the extension:
+
+========== ============================================== ===========================
+extension  format                                          native object
+========== ============================================== ===========================
+``.npz``   matfit Table archive (``Table.save_npz``)       --
+``.csv``   matfit Table CSV (``Table.save_csv``)           --
+``.binary`` MERL 2003 table (:mod:`matfit.io.merl`)        :class:`MerlBRDF`
+``.bsdf``  RGL tensor file (:mod:`matfit.io.rgl`)          :class:`RglBRDF`
+``.alta``  ALTA text data (:mod:`matfit.io.alta`)          :class:`AltaData`
+========== ============================================== ===========================
+
+Malformed input raises :class:`matfit.errors.DataFormatError` naming the file, field, expected and found.
+"""
+from __future__ import annotations
+
+import os
+
+from .._dataerr import data_error
+from ..table import Table
+from .alta import AltaData, read_alta
+from .merl import MerlBRDF, read_merl, write_merl
+from .rgl import RglBRDF, read_rgl, read_tensor_file, write_tensor_file
+
+__all__ = ["load", "save", "read_merl", "write_merl", "read_rgl", "read_alta", "read_tensor_file",
+           "write_tensor_file", "MerlBRDF", "RglBRDF", "AltaData", "EXTENSIONS"]
+
+EXTENSIONS = (".npz", ".csv", ".binary", ".bsdf", ".alta")
+
+
+def load(path, *, return_native: bool = False, **options):
+    """Read ``path`` into a Table (``(table, native)`` with ``return_native=True``; native is None for
+    .npz / .csv). ``options`` go to the native object's ``to_table`` (e.g. ``drop_invalid`` for MERL,
+    ``theta_d`` / ``phi_d`` for ALTA slices)."""
+    ext = os.path.splitext(os.fspath(path))[1].lower()
+    if ext not in EXTENSIONS:
+        raise data_error("extension", " or ".join(EXTENSIONS), repr(ext), file=path)
+    native = None
+    if ext == ".npz":
+        table = Table.load_npz(path)
+    elif ext == ".csv":
+        table = Table.load_csv(path, **options)
+    else:
+        native = {".binary": read_merl, ".bsdf": read_rgl, ".alta": read_alta}[ext](path)
+        table = native.to_table(**options)
+    return (table, native) if return_native else table
+
+
+def save(path, table: Table) -> None:
+    """Write a Table as .npz or .csv, by extension."""
+    ext = os.path.splitext(os.fspath(path))[1].lower()
+    if ext == ".npz":
+        table.save_npz(path)
+    elif ext == ".csv":
+        table.save_csv(path)
+    else:
+        raise data_error("extension", ".npz or .csv", repr(ext), file=path)
