@@ -19,7 +19,7 @@ demo: $(STAMP)
 	$(PY) -m matfit demo --out demo_out
 
 test: $(STAMP)
-	$(PY) -m pytest -q tests
+	$(PY) -m pytest -q tests matfit --doctest-modules
 
 bench: $(STAMP)
 	$(PY) benchmarks/run_all.py

@@ -7,11 +7,23 @@ channels on the last axis.
 
 from . import fresnel, microfacet, models
 from .errors import DataFormatError, MatfitError, ParameterError
-from .models import Lambert, RoughConductor, RoughDielectric, SmoothConductor, SmoothDielectric
+from .table import Table
+from .models import (
+    Blend,
+    CoatedConductor,
+    Lambert,
+    Layered,
+    Plastic,
+    RoughConductor,
+    RoughDielectric,
+    SmoothConductor,
+    SmoothDielectric,
+)
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "Table",
     "fresnel",
     "microfacet",
     "models",
@@ -23,4 +35,8 @@ __all__ = [
     "RoughDielectric",
     "SmoothConductor",
     "SmoothDielectric",
+    "Plastic",
+    "Layered",
+    "CoatedConductor",
+    "Blend",
 ]

@@ -39,6 +39,7 @@ def data_error(field: str, expected=None, found=None, *, file=None, detail: str 
     err.field = field
     err.expected = expected
     err.found = found
+    err.detail = detail
     return err
 
 
@@ -47,4 +48,4 @@ def with_file(err: DataFormatError, file) -> DataFormatError:
     if getattr(err, "file", None) is not None or file is None:
         return err
     return data_error(getattr(err, "field", "?"), getattr(err, "expected", None), getattr(err, "found", None),
-                      file=file, detail=None if hasattr(err, "field") else str(err))
+                      file=file, detail=getattr(err, "detail", None) if hasattr(err, "field") else str(err))

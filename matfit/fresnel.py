@@ -14,7 +14,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from ._math import safe_sqrt, sq
+from ._math import safe_div, safe_sqrt, sq
 
 __all__ = [
     "fresnel_dielectric",
@@ -106,10 +106,11 @@ def fresnel_conductor(cos_theta_i, eta, k):
     a = safe_sqrt(0.5 * (a2b2 + t0))
     t1 = a2b2 + cos2
     t2 = 2 * a * c
-    rs = (t1 - t2) / (t1 + t2)
+    # Both ratios are 0/0 only at grazing incidence on an index-matched surface, where F = 1.
+    rs = safe_div(t1 - t2, t1 + t2, 1.0)
     t3 = cos2 * a2b2 + sq(sin2)
     t4 = t2 * sin2
-    rp = rs * (t3 - t4) / (t3 + t4)
+    rp = rs * safe_div(t3 - t4, t3 + t4, 1.0)
     return 0.5 * (rs + rp)
 
 

@@ -24,7 +24,6 @@ import csv
 import io as _io
 import json
 import math
-import os
 from dataclasses import dataclass, field
 from typing import NamedTuple, Sequence
 
@@ -135,7 +134,7 @@ def _per_channel(name, a, n, c):
 def _json_roundtrip(name, obj):
     try:
         return json.loads(json.dumps(obj, allow_nan=False))
-    except (TypeError, ValueError) as e:
+    except (TypeError, ValueError, RecursionError) as e:
         raise data_error(name, "a JSON-serializable dict", f"{type(obj).__name__} ({e})") from None
 
 
@@ -371,7 +370,7 @@ class Table:
                         raise data_error(k, "a JSON string (0-d unicode array)", f"dtype {a.dtype}, shape {a.shape}", file=src)
                     try:
                         jsons[k] = json.loads(str(a))
-                    except ValueError as e:
+                    except (ValueError, RecursionError) as e:
                         raise data_error(k, "valid JSON", f"invalid JSON ({e})", file=src) from None
                 arrs = {}
                 for k in ("wo", "wi", "values", "valid", "sigma", "weight"):
@@ -455,7 +454,10 @@ class Table:
                 body_start = i + 1
                 continue
             break
-        rows = list(csv.reader(lines[body_start:]))
+        try:
+            rows = list(csv.reader(lines[body_start:]))
+        except csv.Error as e:
+            raise data_error("content", "CSV text", f"unparsable ({e})") from None
         rows = [(body_start + k + 1, r) for k, r in enumerate(rows) if r and any(x.strip() for x in r)]
         if not rows:
             raise data_error("header", "a header line wo_x,wo_y,wo_z,wi_x,wi_y,wi_z,value_<channel>...", "no header")
@@ -494,7 +496,7 @@ class Table:
         if channels is None and "channels" in meta:
             try:
                 channels = json.loads(meta["channels"])
-            except ValueError as e:
+            except (ValueError, RecursionError) as e:
                 raise data_error("channels", "a JSON value on the '# channels:' line", meta["channels"][:40],
                                  detail=str(e)) from None
         if channels is None:
@@ -509,7 +511,7 @@ class Table:
         if "provenance" in meta:
             try:
                 prov = json.loads(meta["provenance"])
-            except ValueError as e:
+            except (ValueError, RecursionError) as e:
                 raise data_error("provenance", "JSON on the '# provenance:' line", meta["provenance"][:40], detail=str(e)) from None
             if not isinstance(prov, dict):
                 raise data_error("provenance", "a JSON object", type(prov).__name__)

@@ -120,7 +120,11 @@ def read_tensor_file(path) -> TensorFile:
                              f"offset {offset} + {nbytes} bytes (shape {tuple(shape)})", file=file)
         if name in fields:
             raise data_error(f"{name}", "unique field names", "a duplicate", file=file)
-        arr = np.frombuffer(buf, dtype=DTYPES[code], count=math.prod(shape), offset=offset).reshape(shape)
+        count = math.prod(shape)
+        if count == 0:
+            arr = np.empty(shape, dtype=DTYPES[code])
+        else:
+            arr = np.frombuffer(buf, dtype=DTYPES[code], count=count, offset=offset).reshape(shape)
         fields[name] = arr
         codes[name] = code
         offsets[name] = offset
@@ -180,12 +184,10 @@ class _Warp2D:
         self.inv_patch = np.array([self.nx - 1, self.ny - 1], dtype=np.float64)
 
     def _weights(self, params):
-        n = None
         slices = np.zeros((1, 1), dtype=np.int64)
         w = np.ones((1, 1))
         for dim, vals in enumerate(self.param_values):
             p = np.asarray(params[dim], dtype=np.float64)
-            n = p.shape[0]
             if len(vals) == 1:
                 continue
             i = np.clip(np.searchsorted(vals, p, side="right") - 1, 0, len(vals) - 2)
@@ -470,12 +472,16 @@ class RglBRDF:
         return contrib.mean(axis=0)
 
     # -------------------------------------------------------------------------------------- table
-    def stored_samples(self):
+    def stored_samples(self, use_file_valid: bool = True):
         """The file's own samples at the measured incidences: (wo, wi, f (N, C) in 1/sr, valid).
 
         For every measured (phi_i, theta_i) and every node of the ``rgb``/``spectra`` grid, the node's
         sample-space position is warped by the VNDF to a half vector and reflected to ``wo``; the value is
         the stored node value (clipped at 0) times ``ndf / (4 sigma)`` divided by ``cos(theta_o)``.
+        Rows are marked invalid when either direction is within 0.06 deg of the horizon (this drops the
+        theta_i = 90 deg incidence) and, with ``use_file_valid``, where the file's ``valid`` field is 0. (The RGL
+        loaders ignore that field and render all nodes; its pattern - e.g. every other node for the diffuse
+        paper - suggests it marks the nodes actually measured. Pass ``use_file_valid=False`` to keep all.)
         """
         ny, nx = self.grid_shape
         gy, gx = np.meshgrid(np.arange(ny) / (ny - 1), np.arange(nx) / (nx - 1), indexing="ij")
@@ -489,19 +495,20 @@ class RglBRDF:
                     u_wi = np.broadcast_to(np.array([[_theta2u(theta), _phi2u(phi)]]), (u.shape[0], 2))
                     vals = vals * (self._ndf.eval(u_wm) / (4.0 * self._sigma.eval(u_wi)))[:, None]
                 ok = (wo[:, 2] >= _GRAZING_COS) & (wi[:, 2] >= _GRAZING_COS)
-                if self.node_valid is not None:
+                if use_file_valid and self.node_valid is not None:
                     ok &= self.node_valid.ravel()
                 f = np.where(ok[:, None], vals / np.where(ok, wo[:, 2], 1.0)[:, None], 0.0)
                 WO.append(wo), WI.append(np.array(wi)), F.append(f), V.append(ok)
         return np.concatenate(WO), np.concatenate(WI), np.concatenate(F), np.concatenate(V)
 
-    def to_table(self) -> Table:
+    def to_table(self, use_file_valid: bool = True) -> Table:
         """A Table of the stored samples (see :meth:`stored_samples`); grazing rows and nodes flagged
         invalid in the file's ``valid`` field are kept with ``valid=False`` and value 0."""
-        wo, wi, f, ok = self.stored_samples()
+        wo, wi, f, ok = self.stored_samples(use_file_valid)
         prov = {"format": "rgl-tensor", "source": self.source, "material": self.description,
                 "instrument": "RGL gonio-photometer (Dupuy & Jakob 2018)",
-                "geometry": "measured incidences x VNDF-warped sample-space nodes"}
+                "geometry": "measured incidences x VNDF-warped sample-space nodes",
+                "use_file_valid": bool(use_file_valid)}
         return Table(wo=wo, wi=wi, values=f, valid=ok, channels=self.channels, provenance=prov)
 
 

@@ -2,7 +2,10 @@
 
 from ._base import AbstractBSDF
 from ._microfacet import AbstractMicrofacetBSDF
+from .blend import Blend
 from .lambert import Lambert
+from .layered import CoatedConductor, Layered
+from .plastic import Plastic
 from .rough_conductor import RoughConductor
 from .rough_dielectric import RoughDielectric
 from .smooth_conductor import SmoothConductor
@@ -12,6 +15,10 @@ __all__ = [
     "AbstractBSDF",
     "AbstractMicrofacetBSDF",
     "Lambert",
+    "Plastic",
+    "Layered",
+    "CoatedConductor",
+    "Blend",
     "RoughConductor",
     "RoughDielectric",
     "SmoothConductor",

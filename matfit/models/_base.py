@@ -26,6 +26,11 @@ class AbstractBSDF(eqx.Module):
     #: True for models made only of Dirac lobes (eval and pdf are zero everywhere).
     is_delta: ClassVar[bool] = False
 
+    @property
+    def has_delta_lobe(self) -> bool:
+        """True when some of the model's energy is in a Dirac lobe (sampled, never evaluated)."""
+        return self.is_delta
+
     @abc.abstractmethod
     def eval(self, wo, wi):
         """BSDF value ``(..., C)`` for directions ``(..., 3)``."""

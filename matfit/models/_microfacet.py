@@ -7,6 +7,7 @@ from typing import Optional
 import equinox as eqx
 import jax.numpy as jnp
 
+from .._math import COS_EPS, dot, normalize, reflect, safe_div
 from ..microfacet import DISTRIBUTIONS, MASKING_FORMS, make_distribution
 from ._base import AbstractBSDF
 from ._params import as_param, check_choice, check_range
@@ -38,6 +39,10 @@ class AbstractMicrofacetBSDF(AbstractBSDF):
         check_choice(owner, "sampling", sampling, SAMPLING)
         check_range(owner, "alpha", alpha, 0.0)
         check_range(owner, "alpha_y", alpha_y, 0.0)
+        if distribution == "blinn_phong":
+            # e = 2/alpha^2 - 2 < 0 beyond alpha = 1, where Beckmann's Lambda no longer matches.
+            check_range(owner, "alpha (blinn_phong)", alpha, 0.0, 1.0)
+            check_range(owner, "alpha_y (blinn_phong)", alpha_y, 0.0, 1.0)
         self.alpha = as_param(alpha)
         self.alpha_y = None if alpha_y is None else as_param(alpha_y)
         self.distribution = distribution
@@ -61,3 +66,14 @@ class AbstractMicrofacetBSDF(AbstractBSDF):
             return d.pdf_visible(wo, m)
         return d.pdf_dcos(m)
 
+
+    def reflection_sample(self, wo, u2):
+        """Sample the microfacet reflection lobe: ``wi = reflect(wo, m)`` with ``m`` sampled."""
+        return reflect(wo, self._sample_m(self.dist(), wo, u2))
+
+    def reflection_pdf(self, wo, wi):
+        """Density of :meth:`reflection_sample`: ``pdf_m(h) / (4 wo.h)`` (0 below the horizon)."""
+        ok = (wo[..., 2] > COS_EPS) & (wi[..., 2] > COS_EPS)
+        h = normalize(wo + wi)
+        p = safe_div(self._pdf_m(self.dist(), wo, h), 4 * dot(wo, h))
+        return jnp.where(ok, p, 0)

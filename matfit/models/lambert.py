@@ -39,20 +39,20 @@ class Lambert(AbstractBSDF):
     (3,)
     """
 
-    albedo_: jnp.ndarray = eqx.field(converter=as_channels)
+    reflectance: jnp.ndarray = eqx.field(converter=as_channels)
 
     def __init__(self, albedo):
         check_range("Lambert", "albedo", albedo, 0.0, 1.0)
-        self.albedo_ = albedo
+        self.reflectance = albedo
 
     @property
     def channels(self):
-        return self.albedo_.shape[-1]
+        return self.reflectance.shape[-1]
 
     def eval(self, wo, wi):
         check_directions("Lambert.eval", wo=wo, wi=wi)
         ok = (wo[..., 2] > COS_EPS) & (wi[..., 2] > COS_EPS)
-        return jnp.where(ok[..., None], self.albedo_ / jnp.pi, 0)
+        return jnp.where(ok[..., None], self.reflectance / jnp.pi, 0)
 
     def pdf(self, wo, wi):
         check_directions("Lambert.pdf", wo=wo, wi=wi)
@@ -66,5 +66,5 @@ class Lambert(AbstractBSDF):
         wi = jnp.broadcast_to(wi, jnp.broadcast_shapes(wi.shape, wo.shape))
         pdf = self.pdf(wo, wi)
         ok = pdf > 0
-        weight = jnp.where(ok[..., None], self.albedo_, 0)
+        weight = jnp.where(ok[..., None], self.reflectance, 0)
         return wi, weight, pdf

@@ -30,7 +30,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._math import COS_EPS, dot, normalize, reflect, safe_div
+from .._math import COS_EPS, dot, normalize, safe_div
 from ..fresnel import fresnel_conductor
 from ._microfacet import AbstractMicrofacetBSDF
 from ._params import as_channels, check_directions, check_range, check_u
@@ -79,17 +79,12 @@ class RoughConductor(AbstractMicrofacetBSDF):
 
     def pdf(self, wo, wi):
         check_directions("RoughConductor.pdf", wo=wo, wi=wi)
-        ok = self._valid(wo, wi)
-        d = self.dist()
-        h = normalize(wo + wi)
-        p = safe_div(self._pdf_m(d, wo, h), 4 * dot(wo, h))
-        return jnp.where(ok, p, 0)
+        return self.reflection_pdf(wo, wi)
 
     def sample(self, wo, u):
         check_directions("RoughConductor.sample", wo=wo)
         check_u("RoughConductor.sample", u, 3)
-        m = self._sample_m(self.dist(), wo, u[..., 1:3])
-        wi = reflect(wo, m)
+        wi = self.reflection_sample(wo, u[..., 1:3])
         pdf = self.pdf(wo, wi)
         ok = pdf > 0
         weight = safe_div(self.eval(wo, wi) * jnp.abs(wi[..., 2])[..., None], pdf[..., None])

@@ -15,12 +15,17 @@ turned to the upper side. Pairs whose microfacet is back-facing for either direc
           {\cos\theta_i\cos\theta_o\,(\omega_i\cdot m + \omega_o\cdot m/\eta_p)^2}\right|
 
 :math:`f_t` is the radiance BTDF (pbrt-v4's ``TransportMode::Radiance``): it obeys
-:math:`f_t(\omega_o,\omega_i)\,\eta_o^2 = f_t(\omega_i,\omega_o)\,\eta_i^2`, with
+:math:`f_t(\omega_o,\omega_i)/\eta_o^2 = f_t(\omega_i,\omega_o)/\eta_i^2`, with
 :math:`\eta_o, \eta_i` the indices of the media that hold each direction.
 
 Sampling picks a visible microfacet normal of ``wo`` (or D cos), then reflection with
 probability F and refraction with probability 1 - F; the pdf carries the Jacobian of each lobe,
 :math:`1/(4|\omega_o\cdot m|)` and :math:`|\omega_i\cdot m|/(\omega_i\cdot m + \omega_o\cdot m/\eta_p)^2`.
+
+Index-matched interface: for :math:`|\eta - 1| <` ``ETA_PASS`` (1e-5) the surface is invisible:
+no reflection, and transmission is a Dirac lobe straight through (``wi = -wo``, weight 1, pdf 1
+as a discrete probability; eval and pdf 0). Just outside that band the transmission lobe is a
+very narrow but finite peak around ``-wo``.
 
 Parameters
 ----------
@@ -44,6 +49,9 @@ from .._math import COS_EPS, dot, flip_up, normalize, reflect, refract, safe_div
 from ..fresnel import fresnel_dielectric
 from ._microfacet import AbstractMicrofacetBSDF
 from ._params import as_param, check_directions, check_range, check_u
+
+#: |eta - 1| below which the interface is treated as index-matched (a straight pass-through).
+ETA_PASS = 1e-5
 
 
 class RoughDielectric(AbstractMicrofacetBSDF):
@@ -70,6 +78,9 @@ class RoughDielectric(AbstractMicrofacetBSDF):
     def channels(self):
         return 1
 
+    def _passthrough(self):
+        return jnp.abs(self.eta - 1) < ETA_PASS
+
     def _geometry(self, wo, wi):
         """Generalized half vector, lobe, relative index and validity for a pair."""
         co = wo[..., 2]
@@ -80,6 +91,7 @@ class RoughDielectric(AbstractMicrofacetBSDF):
         wim = dot(wi, m)
         wom = dot(wo, m)
         ok = (jnp.abs(co) > COS_EPS) & (jnp.abs(ci) > COS_EPS) & (wim * ci > 0) & (wom * co > 0)
+        ok = ok & ~self._passthrough()
         return m, wim, wom, co, ci, refl, etap, ok
 
     def energy_factor(self, wo, wi):
@@ -120,7 +132,16 @@ class RoughDielectric(AbstractMicrofacetBSDF):
         wt, ok_t = refract(wo, m, self.eta)
         wi = jnp.where(choose_r[..., None], wr, wt)
         side_ok = jnp.where(choose_r, wr[..., 2] * wo[..., 2] > 0, ok_t & (wt[..., 2] * wo[..., 2] < 0))
+        # A D cos sample may face away from wo: such a microfacet cannot be hit (and the pair's
+        # generalized half vector would differ from m), so the sample is invalid.
+        side_ok = side_ok & (dot(wo, m) * wo[..., 2] > 0)
         pdf = jnp.where(side_ok, self.pdf(wo, wi), 0)
         ok = pdf > 0
         weight = safe_div(self.eval(wo, wi) * jnp.abs(wi[..., 2])[..., None], pdf[..., None])
-        return wi, jnp.where(ok[..., None], weight, 0), pdf
+        weight = jnp.where(ok[..., None], weight, 0)
+        # Index-matched: straight through, as a discrete lobe.
+        through = self._passthrough() & (jnp.abs(wo[..., 2]) > COS_EPS)
+        wi = jnp.where(through[..., None], -wo, wi)
+        weight = jnp.where(through[..., None], 1.0, weight)
+        pdf = jnp.where(through, 1.0, pdf)
+        return wi, weight, pdf

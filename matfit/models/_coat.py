@@ -1,0 +1,101 @@
+r"""A dielectric coat seen from outside: its reflection lobe and its directional transmittance.
+
+Shared by :class:`Plastic` and :class:`Layered`. A coat is a :class:`SmoothDielectric` (alpha = 0)
+or a :class:`RoughDielectric`. Its energy transmittance for light arriving at
+:math:`\cos\theta = \mu` is :math:`T(\mu) = 1 - F(\mu)` when smooth; when rough it is
+
+.. math:: T(\mu) = \int_{[0,1]^2} (1 - F(\omega_o\cdot m(u)))\,w_t(u)\,\eta_p^2\,du
+
+the transmission lobe's sample weights integrated in primary-sample space by a tensor
+Gauss-Legendre rule (``order`` points per axis), tabulated at ``nodes`` cosines and interpolated
+linearly. The internal diffuse reflectance of the coat is
+:math:`R_{int} = 1 - \bar T/\eta^2` with :math:`\bar T = 2\int_0^1 T(\mu)\mu\,d\mu`, which is
+the exact hemispherical average of the internal Fresnel reflectance for a smooth coat and keeps
+reciprocity and energy balance for a rough one.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+
+from .._math import COS_EPS, dot, flip_up, normalize
+from ..fresnel import fresnel_dielectric, fresnel_dielectric_average
+from .rough_dielectric import RoughDielectric
+from .smooth_dielectric import SmoothDielectric
+
+#: Default Gauss-Legendre order per axis of the rough-coat transmittance quadrature.
+COAT_ORDER = 12
+#: Default number of tabulated cosines for the rough-coat transmittance.
+COAT_NODES = 24
+
+
+def make_coat(alpha, eta, distribution="ggx", masking="separable"):
+    """A smooth coat when ``alpha`` is a concrete 0, else a rough one."""
+    try:
+        smooth = float(np.max(np.asarray(alpha))) == 0.0
+    except Exception:  # traced alpha: rough
+        smooth = False
+    if smooth:
+        return SmoothDielectric(eta)
+    return RoughDielectric(alpha, eta, distribution=distribution, masking=masking)
+
+
+def is_smooth(coat):
+    return isinstance(coat, SmoothDielectric)
+
+
+def coat_reflection(coat, wo, wi):
+    """Value of the coat's (non-delta) reflection lobe, shape (...)."""
+    if is_smooth(coat):
+        return jnp.zeros(jnp.broadcast_shapes(wo.shape, wi.shape)[:-1], jnp.result_type(wo))
+    refl = (wo[..., 2] > COS_EPS) & (wi[..., 2] > COS_EPS)
+    return jnp.where(refl, coat.eval(wo, wi)[..., 0], 0)
+
+
+def _gl01(n, dtype):
+    x, w = np.polynomial.legendre.leggauss(n)
+    return jnp.asarray(0.5 * (x + 1), dtype), jnp.asarray(0.5 * w, dtype)
+
+
+def coat_transmittance_table(coat, order=COAT_ORDER, nodes=COAT_NODES, dtype=None):
+    """Tabulated ``(mu, T(mu))`` of a rough coat (see module doc)."""
+    dtype = jnp.result_type(coat.eta, float) if dtype is None else dtype
+    mu = jnp.linspace(0.0, 1.0, nodes, dtype=dtype)
+    mu_e = jnp.maximum(mu, 1e-3)
+    wo = jnp.stack([jnp.sqrt(1 - mu_e**2), jnp.zeros_like(mu_e), mu_e], -1)
+    x, w = _gl01(order, dtype)
+    u1, u2 = jnp.meshgrid(x, x, indexing="ij")
+    wts = (w[:, None] * w[None, :]).reshape(-1)
+    u = jnp.stack([jnp.full(u1.size, 1 - 1e-7, dtype), u1.reshape(-1), u2.reshape(-1)], -1)
+    wob = jnp.broadcast_to(wo[:, None, :], (nodes, u.shape[0], 3))
+    ub = jnp.broadcast_to(u[None], (nodes,) + u.shape)
+    wi, weight, _ = coat.sample(wob, ub)
+    # With u0 -> 1 the sample is a transmission unless F = 1, and its weight is
+    # f_t cos / (pdf_m J (1 - F)): multiplying by (1 - F) at the sample's microfacet gives the
+    # transmitted radiance fraction, and eta^2 turns it into energy.
+    trans = wi[..., 2] < 0
+    m = flip_up(normalize(wi * coat.eta + wob))
+    one_minus_F = 1 - fresnel_dielectric(dot(wob, m), coat.eta)
+    e = jnp.where(trans, weight[..., 0] * one_minus_F * coat.eta**2, 0)
+    T = jnp.sum(e * wts, axis=-1)
+    T = T.at[0].set(0.0)  # grazing: nothing enters
+    return mu, T
+
+
+def coat_transmittance(coat, mu, table=None):
+    """Energy transmittance of the coat at incidence cosine ``mu`` (...)."""
+    mu = jnp.clip(jnp.asarray(mu), 0, 1)
+    if is_smooth(coat):
+        return 1 - fresnel_dielectric(mu, coat.eta)
+    grid, T = coat_transmittance_table(coat) if table is None else table
+    return jnp.interp(mu, grid, T)
+
+
+def coat_internal_reflectance(coat, table=None, order=64):
+    """Hemispherical internal reflectance ``R_int = 1 - Tbar / eta^2`` of the coat."""
+    if is_smooth(coat):
+        return fresnel_dielectric_average(1 / coat.eta, n=order)
+    x, w = _gl01(order, jnp.result_type(coat.eta, float))
+    tbar = 2 * jnp.sum(w * x * coat_transmittance(coat, x, table))
+    return 1 - tbar / coat.eta**2

@@ -1,0 +1,93 @@
+r"""Blend: linear interpolation of two BSDFs.
+
+.. math:: f = (1 - w)\,f_a + w\,f_b,\qquad p = (1 - w)\,p_a + w\,p_b
+
+Sampling picks ``b`` with probability ``w`` (reusing the rescaled ``u[..., 0]`` for the chosen
+model's own lobe choice); the pdf is the exact mixture of the non-delta parts, and a delta lobe
+of either model keeps its discrete probability scaled by its selection probability.
+
+Parameters
+----------
+a, b : matfit models with the same or broadcastable channel counts.
+weight : w in [0, 1], differentiable (scalar or batch-shaped).
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+from .._math import safe_div
+from ._base import AbstractBSDF
+from ._params import as_param, check_directions, check_range, check_u
+from ..errors import ParameterError
+
+
+class Blend(AbstractBSDF):
+    """``(1 - weight) a + weight b``.
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit.models import Blend, Lambert, RoughConductor
+    >>> m = Blend(Lambert(0.5), RoughConductor(0.2, 1.5, 3.0), 0.25)
+    >>> m.eval(jnp.array([0.0, 0.0, 1.0]), jnp.array([0.0, 0.0, 1.0])).shape
+    (1,)
+    """
+
+    a: AbstractBSDF
+    b: AbstractBSDF
+    weight: jnp.ndarray
+
+    def __init__(self, a, b, weight):
+        for name, m in (("a", a), ("b", b)):
+            if not isinstance(m, AbstractBSDF):
+                raise ParameterError(f"Blend: {name} must be a matfit model, got {type(m).__name__}")
+        check_range("Blend", "weight", weight, 0.0, 1.0)
+        self.a = a
+        self.b = b
+        self.weight = as_param(weight)
+
+    @property
+    def channels(self):
+        return max(self.a.channels, self.b.channels)
+
+    def eval(self, wo, wi):
+        check_directions("Blend.eval", wo=wo, wi=wi)
+        w = self.weight[..., None]
+        return (1 - w) * self.a.eval(wo, wi) + w * self.b.eval(wo, wi)
+
+    def pdf(self, wo, wi):
+        check_directions("Blend.pdf", wo=wo, wi=wi)
+        return (1 - self.weight) * self.a.pdf(wo, wi) + self.weight * self.b.pdf(wo, wi)
+
+    def energy_factor(self, wo, wi):
+        # Transmission in either part: use the part that transmits (they agree on reflection).
+        return jnp.maximum(self.a.energy_factor(wo, wi), self.b.energy_factor(wo, wi))
+
+    def delta_albedo(self, wo):
+        w = self.weight[..., None]
+        return (1 - w) * self.a.delta_albedo(wo) + w * self.b.delta_albedo(wo)
+
+    def sample(self, wo, u):
+        check_directions("Blend.sample", wo=wo)
+        check_u("Blend.sample", u, 3)
+        w = self.weight
+        choose_b = u[..., 0] < w
+        u0 = jnp.where(choose_b, safe_div(u[..., 0], w), safe_div(u[..., 0] - w, 1 - w))
+        u2 = jnp.concatenate([jnp.clip(u0, 0, 1 - 1e-7)[..., None], u[..., 1:3]], axis=-1)
+        wi_a, wt_a, p_a = self.a.sample(wo, u2)
+        wi_b, wt_b, p_b = self.b.sample(wo, u2)
+        wi = jnp.where(choose_b[..., None], wi_b, wi_a)
+        pdf = self.pdf(wo, wi)
+        weight = safe_div(self.eval(wo, wi) * jnp.abs(wi[..., 2])[..., None], pdf[..., None])
+        # A delta sample of the chosen part: its own weight, discrete pdf scaled by the choice.
+        delta_a = self.a.is_delta
+        delta_b = self.b.is_delta
+        if delta_a or delta_b:
+            is_d = jnp.where(choose_b, delta_b, delta_a)
+            w_d = jnp.where(choose_b[..., None], wt_b, wt_a)
+            p_d = jnp.where(choose_b, w * p_b, (1 - w) * p_a)
+            weight = jnp.where(is_d[..., None], w_d, weight)
+            pdf = jnp.where(is_d, p_d, pdf)
+        ok = pdf > 0
+        return wi, jnp.where(ok[..., None], weight, 0), jnp.where(ok, pdf, 0)

@@ -1,0 +1,202 @@
+r"""Layered: a dielectric coat over any base, after Weidlich & Wilkie (2007).
+
+.. math::
+    f(\omega_o, \omega_i) = f_{coat}(\omega_o, \omega_i)
+      + \frac{T(\mu_o)\,T(\mu_i)}{\eta^2}\, f_{base}(\omega_o', \omega_i')\,
+        e^{-\sigma_a d\,(1/\mu_o' + 1/\mu_i')}
+
+:math:`\omega' = -\mathrm{refract}(\omega)` are the directions refracted through the coat's mean
+normal (pointing up inside the layer), :math:`T` the coat's directional energy transmittance
+(Fresnel ``1 - F`` in and out when smooth), :math:`\eta^2` the radiance compression of the
+refracted solid angle, and the exponential the Beer-Lambert absorption along both refracted
+paths, per channel. Multiple reflections between coat and base are neglected (as in
+Weidlich-Wilkie); :class:`Plastic` sums them for a Lambertian base, and
+:class:`StochasticLayered` simulates them exactly. The model is reciprocal when the base is.
+Layers stack: the base may itself be a :class:`Layered`.
+
+Sampling: the coat lobe with probability ``R(mu_o) = 1 - T(mu_o)``, else the base's own sampler
+at ``wo'`` with the result refracted out; the pdf is the exact mixture, the base part carrying
+the Jacobian :math:`\mu_i/(\eta^2\mu_i')`. A smooth coat's delta lobe is sampled with its
+discrete probability as pdf.
+
+Parameters
+----------
+coat : SmoothDielectric or RoughDielectric (eta > 0; from outside).
+base : any reflective model without Dirac lobes (a smooth-coated stack cannot be a base), evaluated inside the layer (indices relative to the coat).
+thickness : d >= 0, in the units of 1/sigma_a, differentiable.
+sigma_a : (..., C) absorption coefficient >= 0, differentiable.
+
+References
+----------
+- A. Weidlich, A. Wilkie, "Arbitrarily Layered Micro-Facet Surfaces", GRAPHITE 2007.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+
+from .._math import COS_EPS, refract, safe_div
+from ..errors import ParameterError
+from ..fresnel import fresnel_dielectric
+from ._base import AbstractBSDF
+from ._coat import coat_reflection, coat_transmittance, coat_transmittance_table, is_smooth, make_coat
+from ._params import as_channels, as_param, check_directions, check_range, check_u
+from .rough_dielectric import RoughDielectric
+from .smooth_dielectric import SmoothDielectric
+
+
+class Layered(AbstractBSDF):
+    """Any dielectric coat over any base model (stackable).
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit.models import Layered, Lambert, SmoothDielectric
+    >>> varnish = Layered(SmoothDielectric(1.5), Lambert(jnp.array([0.5, 0.3, 0.1])), thickness=0.1, sigma_a=0.5)
+    >>> varnish.eval(jnp.array([0.0, 0.0, 1.0]), jnp.array([0.6, 0.0, 0.8])).shape
+    (3,)
+    """
+
+    coat: AbstractBSDF
+    base: AbstractBSDF
+    thickness: jnp.ndarray
+    sigma_a: jnp.ndarray = eqx.field(converter=as_channels)
+
+    def __init__(self, coat, base, thickness=0.0, sigma_a=0.0):
+        if not isinstance(coat, (SmoothDielectric, RoughDielectric)):
+            raise ParameterError(f"Layered: coat must be a SmoothDielectric or RoughDielectric, got {type(coat).__name__}")
+        if not isinstance(base, AbstractBSDF) or base.has_delta_lobe:
+            raise ParameterError(
+                f"Layered: base must be a matfit model without Dirac lobes (rough, or a stack whose coats are rough), "
+                f"got {type(base).__name__}"
+            )
+        check_range("Layered", "thickness", thickness, 0.0)
+        check_range("Layered", "sigma_a", sigma_a, 0.0)
+        self.coat = coat
+        self.base = base
+        self.thickness = as_param(thickness)
+        self.sigma_a = sigma_a
+
+    @property
+    def channels(self):
+        return max(self.base.channels, self.sigma_a.shape[-1])
+
+    @property
+    def has_delta_lobe(self):
+        return is_smooth(self.coat)
+
+    def _table(self):
+        return None if is_smooth(self.coat) else coat_transmittance_table(self.coat)
+
+    def _inner(self, w):
+        """Direction inside the layer (pointing up) for an outside direction ``w``."""
+        n = jnp.zeros_like(w).at[..., 2].set(1)
+        t, ok = refract(w, n, self.coat.eta)
+        return -t, ok & (w[..., 2] > COS_EPS)
+
+    def _outer(self, w_in):
+        """Outside direction for an inside direction ``w_in`` pointing up (None under TIR)."""
+        n = jnp.zeros_like(w_in).at[..., 2].set(1)
+        t, ok = refract(-w_in, n, self.coat.eta)
+        return t, ok & (w_in[..., 2] > COS_EPS)
+
+    def _absorption(self, wo_b, wi_b):
+        mo = jnp.maximum(wo_b[..., 2], COS_EPS)
+        mi = jnp.maximum(wi_b[..., 2], COS_EPS)
+        return jnp.exp(-(self.sigma_a * self.thickness) * (1 / mo + 1 / mi)[..., None])
+
+    def eval(self, wo, wi):
+        check_directions("Layered.eval", wo=wo, wi=wi)
+        table = self._table()
+        wo_b, ok_o = self._inner(wo)
+        wi_b, ok_i = self._inner(wi)
+        ok = ok_o & ok_i
+        T = coat_transmittance(self.coat, wo[..., 2], table) * coat_transmittance(self.coat, wi[..., 2], table)
+        inner = (T / self.coat.eta**2)[..., None] * self.base.eval(wo_b, wi_b) * self._absorption(wo_b, wi_b)
+        f = coat_reflection(self.coat, wo, wi)[..., None] + jnp.where(ok[..., None], inner, 0)
+        both = (wo[..., 2] > COS_EPS) & (wi[..., 2] > COS_EPS)
+        return jnp.where(both[..., None], f, 0)
+
+    def _p_coat(self, wo, table):
+        return 1 - coat_transmittance(self.coat, wo[..., 2], table)
+
+    def pdf(self, wo, wi):
+        check_directions("Layered.pdf", wo=wo, wi=wi)
+        table = self._table()
+        pc = self._p_coat(wo, table)
+        wo_b, ok_o = self._inner(wo)
+        wi_b, ok_i = self._inner(wi)
+        jac = safe_div(jnp.abs(wi[..., 2]), self.coat.eta**2 * wi_b[..., 2])
+        p_b = jnp.where(ok_o & ok_i, self.base.pdf(wo_b, wi_b) * jac, 0)
+        p_c = 0.0 if is_smooth(self.coat) else self.coat.reflection_pdf(wo, wi)
+        both = (wo[..., 2] > COS_EPS) & (wi[..., 2] > COS_EPS)
+        return jnp.where(both, pc * p_c + (1 - pc) * p_b, 0)
+
+    def delta_albedo(self, wo):
+        if not is_smooth(self.coat):
+            return super().delta_albedo(wo)
+        ok = wo[..., 2] > COS_EPS
+        F = jnp.where(ok, fresnel_dielectric(wo[..., 2], self.coat.eta), 0)
+        return jnp.broadcast_to(F[..., None], wo.shape[:-1] + (self.channels,))
+
+    def sample(self, wo, u):
+        check_directions("Layered.sample", wo=wo)
+        check_u("Layered.sample", u, 3)
+        table = self._table()
+        pc = self._p_coat(wo, table)
+        choose_c = u[..., 0] < pc
+        # Re-use u0 for the base's own lobe choice, rescaled to [0, 1).
+        u0_b = jnp.clip(safe_div(u[..., 0] - pc, 1 - pc), 0, 1 - 1e-7)
+        wo_b, ok_o = self._inner(wo)
+        u_b = jnp.concatenate([u0_b[..., None], u[..., 1:3]], axis=-1)
+        wi_b, _, _ = self.base.sample(jnp.broadcast_to(wo_b, u_b.shape), u_b)
+        wi_out, ok_out = self._outer(wi_b)
+        if is_smooth(self.coat):
+            wi_c = wo * jnp.array([-1, -1, 1], wo.dtype)
+        else:
+            wi_c = self.coat.reflection_sample(wo, u[..., 1:3])
+        wi = jnp.where(choose_c[..., None], wi_c, wi_out)
+        pdf = self.pdf(wo, wi)
+        weight = safe_div(self.eval(wo, wi) * jnp.abs(wi[..., 2])[..., None], pdf[..., None])
+        ok = (pdf > 0) & jnp.where(choose_c, True, ok_o & ok_out)
+        if is_smooth(self.coat):
+            F = fresnel_dielectric(wo[..., 2], self.coat.eta)
+            w_delta = jnp.broadcast_to(safe_div(F, pc)[..., None], weight.shape)
+            ok_c = (wo[..., 2] > COS_EPS) & (pc > 0)
+            weight = jnp.where(choose_c[..., None], w_delta, weight)
+            pdf = jnp.where(choose_c, pc, pdf)
+            ok = jnp.where(choose_c, ok_c, ok)
+        return wi, jnp.where(ok[..., None], weight, 0), jnp.where(ok, pdf, 0)
+
+
+def CoatedConductor(alpha_base, eta_base, k_base, alpha_coat=0.0, eta_coat=1.5, thickness=0.0, sigma_a=0.0,
+                    distribution="ggx", masking="separable"):
+    r"""Car paint: a rough conductor under a smooth or rough clear coat (a :class:`Layered`).
+
+    The coat's Fresnel is applied on the way in and on the way out, directions are refracted into
+    the layer, and the coat absorbs with ``sigma_a`` over ``thickness``. ``eta_base`` and
+    ``k_base`` are the metal's index relative to the outside (air), as tabulated; inside the coat
+    the conductor sees :math:`(\eta_b + i k_b)/\eta_{coat}`.
+
+    Parameters
+    ----------
+    alpha_base : metal roughness > 0.  eta_base, k_base : (..., C) metal index.
+    alpha_coat : coat roughness (0: smooth).  eta_coat : coat index, > 0.
+    thickness, sigma_a : coat absorption, as in :class:`Layered`.
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit.models import CoatedConductor
+    >>> paint = CoatedConductor(0.3, jnp.array([0.2, 0.9, 1.1]), jnp.array([3.9, 2.4, 2.2]), eta_coat=1.5)
+    >>> paint.eval(jnp.array([0.0, 0.0, 1.0]), jnp.array([0.0, 0.0, 1.0])).shape
+    (3,)
+    """
+    from .rough_conductor import RoughConductor
+
+    check_range("CoatedConductor", "eta_coat", eta_coat, 0.0, lo_open=True)
+    coat = make_coat(alpha_coat, eta_coat, distribution, masking)
+    base = RoughConductor(alpha_base, as_channels(eta_base) / coat.eta, as_channels(k_base) / coat.eta,
+                          distribution=distribution, masking=masking)
+    return Layered(coat, base, thickness, sigma_a)

@@ -1,0 +1,150 @@
+r"""Plastic: a Lambertian base under a smooth or rough dielectric coat.
+
+.. math::
+    f(\omega_o, \omega_i) = f_{coat}(\omega_o, \omega_i) + f_d(\omega_o, \omega_i)
+
+:math:`f_{coat}` is the coat's reflection lobe (a delta when smooth, :class:`RoughDielectric`'s
+reflection when rough). With :math:`T(\mu)` the coat's directional energy transmittance
+(``1 - F`` when smooth; see :mod:`matfit.models._coat`):
+
+- ``internal_reflection=False`` (the article's Fresnel-weighted sum):
+  :math:`f_d = T(\mu_o)\,T(\mu_i)\,\rho/\pi`.
+- ``internal_reflection=True`` (light bouncing between base and coat, summed as a geometric
+  series): :math:`f_d = \dfrac{T(\mu_o)\,T(\mu_i)\,\rho}{\pi\,\eta^2\,(1 - \rho\,R_{int})}`,
+  :math:`R_{int} = 1 - \bar T/\eta^2` (the internal hemispherical Fresnel average for a smooth
+  coat). A white base under a lossless smooth coat then reflects all the energy, and
+  :math:`E(\mu) = F(\mu) + (1 - F(\mu))\,\rho\,(1 - \bar F_{int})/(1 - \rho\,\bar F_{int})`.
+
+Both forms are reciprocal. Sampling picks the coat lobe with probability
+:math:`R/(R + T\bar\rho)` (``R = 1 - T(mu_o)``) and the diffuse lobe (cosine-weighted) otherwise;
+the pdf is the exact mixture. With a smooth coat the coat lobe is a delta: its sample has the
+discrete probability as pdf, and eval/pdf cover the diffuse part only.
+
+Parameters
+----------
+albedo : (..., C) diffuse albedo of the base, [0, 1], differentiable.
+alpha : coat roughness, >= 0; a concrete 0 gives a smooth coat. Differentiable when rough.
+eta : coat index relative to the outside, > 0 (typically 1.3-1.8), differentiable.
+distribution : coat microfacet distribution (rough coat only).
+internal_reflection : bool, see above.
+
+References
+----------
+- A. Weidlich, A. Wilkie, "Arbitrarily Layered Micro-Facet Surfaces", GRAPHITE 2007.
+- J. Jakob, "Mitsuba 0.6 documentation: plastic / roughplastic", 2014 (internal scattering term).
+- Article in ``shared/seed`` (Fresnel-weighted sum of a coat lobe and a diffuse lobe).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+
+from .._math import COS_EPS, cosine_hemisphere, safe_div
+from ..fresnel import fresnel_dielectric
+from ._base import AbstractBSDF
+from ._coat import coat_internal_reflectance, coat_reflection, coat_transmittance, coat_transmittance_table, is_smooth, make_coat
+from ._params import as_channels, check_directions, check_range, check_u
+from .lambert import Lambert
+
+
+class Plastic(AbstractBSDF):
+    """Diffuse base under a dielectric clear coat (plastic, varnished wood).
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit.models import Plastic
+    >>> red = Plastic(jnp.array([0.7, 0.1, 0.1]), alpha=0.1, eta=1.5)
+    >>> up = jnp.array([0.0, 0.0, 1.0])
+    >>> red.eval(up, jnp.array([0.6, 0.0, 0.8])).shape
+    (3,)
+    """
+
+    reflectance: jnp.ndarray = eqx.field(converter=as_channels)
+    coat: AbstractBSDF
+    internal_reflection: bool = eqx.field(static=True)
+
+    def __init__(self, albedo, alpha=0.0, eta=1.5, distribution="ggx", internal_reflection=True, masking="separable"):
+        check_range("Plastic", "albedo", albedo, 0.0, 1.0)
+        check_range("Plastic", "alpha", alpha, 0.0)
+        check_range("Plastic", "eta", eta, 0.0, lo_open=True)
+        self.reflectance = albedo
+        self.coat = make_coat(alpha, eta, distribution, masking)
+        self.internal_reflection = bool(internal_reflection)
+
+    @property
+    def channels(self):
+        return self.reflectance.shape[-1]
+
+    @property
+    def eta(self):
+        return self.coat.eta
+
+    @property
+    def has_delta_lobe(self):
+        return is_smooth(self.coat)
+
+    def _table(self):
+        return None if is_smooth(self.coat) else coat_transmittance_table(self.coat)
+
+    def _diffuse(self, wo, wi, table):
+        To = coat_transmittance(self.coat, wo[..., 2], table)
+        Ti = coat_transmittance(self.coat, wi[..., 2], table)
+        scale = (To * Ti)[..., None] * self.reflectance / jnp.pi
+        if self.internal_reflection:
+            r_int = coat_internal_reflectance(self.coat, table)
+            scale = scale / (self.coat.eta**2 * (1 - self.reflectance * r_int))
+        return scale
+
+    def eval(self, wo, wi):
+        check_directions("Plastic.eval", wo=wo, wi=wi)
+        ok = (wo[..., 2] > COS_EPS) & (wi[..., 2] > COS_EPS)
+        table = self._table()
+        f = coat_reflection(self.coat, wo, wi)[..., None] + self._diffuse(wo, wi, table)
+        return jnp.where(ok[..., None], f, 0)
+
+    def _p_coat(self, wo, table):
+        R = 1 - coat_transmittance(self.coat, wo[..., 2], table)
+        rho = jnp.mean(self.reflectance, axis=-1)
+        return safe_div(R, R + (1 - R) * rho, 0.5)
+
+    def pdf(self, wo, wi):
+        check_directions("Plastic.pdf", wo=wo, wi=wi)
+        table = self._table()
+        pc = self._p_coat(wo, table)
+        p_d = Lambert(self.reflectance).pdf(wo, wi)
+        p_c = 0.0 if is_smooth(self.coat) else self.coat.reflection_pdf(wo, wi)
+        return pc * p_c + (1 - pc) * p_d
+
+    def delta_albedo(self, wo):
+        if not is_smooth(self.coat):
+            return super().delta_albedo(wo)
+        ok = wo[..., 2] > COS_EPS
+        F = jnp.where(ok, fresnel_dielectric(wo[..., 2], self.coat.eta), 0)
+        return jnp.broadcast_to(F[..., None], wo.shape[:-1] + (self.channels,))
+
+    def sample(self, wo, u):
+        check_directions("Plastic.sample", wo=wo)
+        check_u("Plastic.sample", u, 3)
+        table = self._table()
+        pc = self._p_coat(wo, table)
+        choose_c = u[..., 0] < pc
+        wi_d = cosine_hemisphere(u[..., 1], u[..., 2])
+        if is_smooth(self.coat):
+            wi_c = wo * jnp.array([-1, -1, 1], wo.dtype)
+        else:
+            wi_c = self.coat.reflection_sample(wo, u[..., 1:3])
+        wi = jnp.where(choose_c[..., None], wi_c, wi_d)
+        pdf = self.pdf(wo, wi)
+        weight = safe_div(self.eval(wo, wi) * jnp.abs(wi[..., 2])[..., None], pdf[..., None])
+        ok = (pdf > 0) & (wi[..., 2] > COS_EPS)
+        if is_smooth(self.coat):
+            # The delta lobe: weight F / P(coat), pdf = the discrete probability P(coat).
+            F = fresnel_dielectric(wo[..., 2], self.coat.eta)
+            w_delta = jnp.broadcast_to(safe_div(F, pc)[..., None], weight.shape)
+            ok_c = (wo[..., 2] > COS_EPS) & (pc > 0)
+            weight = jnp.where(choose_c[..., None], w_delta, weight)
+            pdf = jnp.where(choose_c, pc, pdf)
+            ok = jnp.where(choose_c, ok_c, ok)
+        return wi, jnp.where(ok[..., None], weight, 0), jnp.where(ok, pdf, 0)
