@@ -18,6 +18,7 @@ from .models import (
     RoughDielectric,
     SmoothConductor,
     SmoothDielectric,
+    StochasticLayered,
 )
 
 __version__ = "0.1.0"
@@ -39,4 +40,5 @@ __all__ = [
     "Layered",
     "CoatedConductor",
     "Blend",
+    "StochasticLayered",
 ]

@@ -10,10 +10,12 @@ from .rough_conductor import RoughConductor
 from .rough_dielectric import RoughDielectric
 from .smooth_conductor import SmoothConductor
 from .smooth_dielectric import SmoothDielectric
+from .stochastic_layered import StochasticLayered
 
 __all__ = [
     "AbstractBSDF",
     "AbstractMicrofacetBSDF",
+    "StochasticLayered",
     "Lambert",
     "Plastic",
     "Layered",
