@@ -17,6 +17,8 @@ install: $(STAMP)
 
 demo: $(STAMP)
 	$(PY) -m matfit demo --out demo_out
+	$(PY) -m matfit synth data_synth/scenes/demo.toml -o demo_out/demo_synth.npz
+	$(PY) -m matfit info demo_out/demo_synth.npz
 
 test: $(STAMP)
 	$(PY) -m pytest -q tests matfit --doctest-modules

@@ -110,11 +110,12 @@ class StochasticLayered(AbstractBSDF):
         C = self.channels
         wo = jnp.broadcast_to(wo, shape + (3,))
         dtype = wo.dtype
-        keys = jax.random.split(key, 1 + 2 * self.max_depth)
+        k0, k_loop = jax.random.split(key)
         total = jnp.zeros(shape + (C,), dtype)
-        u = jax.random.uniform(keys[0], shape + (3,), dtype)
+        u = jax.random.uniform(k0, shape + (3,), dtype)
         w_c, wt, pc = coat.sample(wo, u)
         up = w_c[..., 2] > 0
+        light_in = conn = mu_i = None
         if energy:  # reflected at the entry: counts as leaving energy
             total = total + jnp.where((up & (pc > 0))[..., None], wt, 0)
         else:
@@ -129,26 +130,30 @@ class StochasticLayered(AbstractBSDF):
                 conn = jnp.where(ok_l & (wi[..., 2] > COS_EPS), conn, 0)[..., None] * self._atten(light_in)
         alive = (pc > 0) & ~up
         beta = jnp.where(alive[..., None], wt, 0) * jnp.ones((C,), dtype)
-        w_down = w_c
-        for depth in range(self.max_depth):
+
+        def bounce(carry, k):
+            total, beta, alive, w_down = carry
+            k_b, k_l, k_c = jax.random.split(k, 3)
             beta = beta * self._atten(w_down)
             wo_base = -w_down
             if not energy and smooth:
                 total = total + beta * base.eval(wo_base, light_in) * conn
-            k_b, k_l = jax.random.split(keys[1 + 2 * depth])
             wi_b, wb, pb = base.sample(wo_base, jax.random.uniform(k_b, shape + (3,), dtype))
             beta_v = beta
             alive = alive & (pb > 0) & (wi_b[..., 2] > COS_EPS)
             beta = jnp.where(alive[..., None], beta * wb * self._atten(wi_b), 0)
             if not energy and not smooth:
                 total = total + self._connect_rough(wo_base, wi, mu_i, wi_b, beta, beta_v, k_l, shape, dtype)
-            w_c, wc, pcc = coat.sample(-wi_b, jax.random.uniform(keys[2 + 2 * depth], shape + (3,), dtype))
+            w_c, wc, pcc = coat.sample(-wi_b, jax.random.uniform(k_c, shape + (3,), dtype))
             out = alive & (pcc > 0) & (w_c[..., 2] > 0)
             if energy:
                 total = total + jnp.where(out[..., None], beta * wc, 0)
             alive = alive & (pcc > 0) & (w_c[..., 2] < 0)
             beta = jnp.where(alive[..., None], beta * wc, 0)
-            w_down = w_c
+            return (total, beta, alive, w_c), None
+
+        keys = jax.random.split(k_loop, self.max_depth)
+        (total, _, _, _), _ = jax.lax.scan(bounce, (total, beta, alive, w_c), keys)
         return total
 
     def _connect_rough(self, wo_base, wi, mu_i, wi_b, beta, beta_v, key, shape, dtype):

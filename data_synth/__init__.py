@@ -1,0 +1,19 @@
+"""data_synth: a synthetic gonioreflectometer producing :class:`matfit.Table` objects from TOML scenes.
+
+>>> from data_synth import load_scene, synthesize
+>>> table = synthesize(load_scene("demo"))          # a shipped scene, by name
+>>> table.provenance["ground_truth"]["model"]
+'RoughConductor'
+
+Modules: :mod:`~data_synth.scene` (scene files), :mod:`~data_synth.geometry` (measurement geometries),
+:mod:`~data_synth.effects` (aperture and noise), :mod:`~data_synth.spectral` (metal n, k and colour),
+:mod:`~data_synth.synth` (the pipeline). Scene keys are documented in docs/data.md.
+"""
+from .errors import (MissingKeyError, SceneError, SceneSyntaxError, SceneTypeError, SceneValueError,
+                     UnknownKeyError, UnknownModelError, UnknownParameterError)
+from .scene import Scene, load_scene, parse_scene, shipped_scenes
+from .synth import EvalCounter, synthesize
+
+__all__ = ["Scene", "load_scene", "parse_scene", "shipped_scenes", "synthesize", "EvalCounter", "SceneError",
+           "SceneSyntaxError", "UnknownKeyError", "MissingKeyError", "SceneTypeError", "UnknownModelError",
+           "UnknownParameterError", "SceneValueError"]
