@@ -1,0 +1,11 @@
+"""Fitting model families to measurement tables: parameters, losses, solvers, uncertainty."""
+
+from .fit import METHODS, FitError, FitResult, fit, fit_batch, initial_guess
+from .losses import LOSSES, residuals
+from .params import FAMILIES, Family, Param, Parametrization, get_family
+
+__all__ = [
+    "FAMILIES", "Family", "Param", "Parametrization", "get_family",
+    "LOSSES", "residuals",
+    "METHODS", "FitError", "FitResult", "fit", "fit_batch", "initial_guess",
+]
