@@ -50,8 +50,10 @@ class BlinnPhong(AbstractDistribution):
         ex, ey = self.exponent
         mz = m[..., 2]
         pos = mz > 0
-        log_mz = jnp.log(jnp.where(pos, mz, 1))
-        d = jnp.sqrt((ex + 2) * (ey + 2)) / (2 * jnp.pi) * jnp.exp(self._e_phi(m) * log_mz)
+        # cos^e = exp(e/2 log(1 - sin^2)): log1p of sin^2 keeps float32 accurate at e ~ 1e6.
+        sin2 = jnp.minimum(sq(m[..., 0]) + sq(m[..., 1]), 1.0)
+        log_cos = 0.5 * jnp.log1p(-jnp.where(pos, jnp.minimum(sin2, 1 - 1e-7), 0.0))
+        d = jnp.sqrt((ex + 2) * (ey + 2)) / (2 * jnp.pi) * jnp.exp(self._e_phi(m) * log_cos)
         return jnp.where(pos, d, 0)
 
     def Lambda(self, v):
@@ -69,7 +71,9 @@ class BlinnPhong(AbstractDistribution):
         cp = jnp.cos(phi)
         sp = jnp.sin(phi)
         e = ex * sq(cp) + ey * sq(sp)
+        # cos(theta) = u^(1/(e+2)); sin^2 = -expm1(2 log(u)/(e+2)) stays accurate for huge e.
         u1 = jnp.maximum(u[..., 0], 1e-30)
-        cos_t = jnp.exp(jnp.log(u1) / (e + 2))
-        sin_t = jnp.sqrt(jnp.maximum(0, 1 - sq(cos_t)))
+        sin2 = -jnp.expm1(2 * jnp.log(u1) / (e + 2))
+        sin_t = jnp.sqrt(jnp.clip(sin2, 0, 1))
+        cos_t = jnp.sqrt(jnp.clip(1 - sin2, 0, 1))
         return jnp.stack([sin_t * cp, sin_t * sp, cos_t], axis=-1)
