@@ -1,4 +1,4 @@
-"""Command-line interface: ``matfit demo``, ``matfit synth``, ``matfit info``.
+"""Command-line interface: ``matfit demo``, ``synth``, ``info``, ``fit``, ``compare``.
 
 Examples
 --------
@@ -7,8 +7,17 @@ polar lobe plot (``lobes.png``) and a table of directional albedos (``albedo.csv
 
 ``matfit synth SCENE.toml -o TABLE.npz`` renders a synthetic measurement (data_synth); a shipped scene
 may be named without its folder (``matfit synth demo -o demo.npz``). ``matfit info TABLE`` prints the
-summary of any table or measured file that ``matfit.io.load`` reads. Errors (scene-file errors, malformed
-data) are printed as one line and the exit status is 2.
+summary of any table or measured file that ``matfit.io.load`` reads.
+
+``matfit fit TABLE --model conductor --method lm --report DIR`` fits a model family to any file that
+``matfit.io.load`` reads (.npz, .csv, MERL .binary, RGL .bsdf, .alta), prints the parameter table (with the
+truth when the table is synthetic) and, with ``--report``, writes a report (``matfit.report``).
+``--method mcmc`` runs a least-squares fit and then samples the posterior (``matfit.fitting.mcmc``).
+``matfit compare TABLE --models lambert,conductor,plastic`` compares families on a hold-out split
+(``matfit.fitting.select``).
+
+Errors (bad arguments, scene-file errors, malformed data, impossible fits) are printed as one line and
+the exit status is 2.
 """
 
 from __future__ import annotations
@@ -16,6 +25,8 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+
+import numpy as np
 
 
 def _cmd_demo(args):
@@ -58,8 +69,154 @@ def _short_params(p):
                            if k != "model") + "}"
 
 
+def _parse_fixed(items):
+    """``["eta=1.5", "albedo=0.2,0.3,0.4"]`` -> ``{"eta": 1.5, "albedo": [0.2, 0.3, 0.4]}``."""
+    out = {}
+    for it in items or ():
+        name, sep, val = it.partition("=")
+        name = name.strip()
+        if not sep or not name or not val.strip():
+            raise ValueError(f"--fixed expects name=value (or name=v1,v2,v3), got {it!r}")
+        try:
+            nums = [float(v) for v in val.split(",")]
+        except ValueError:
+            raise ValueError(f"--fixed {name}: expected numbers, got {val!r}") from None
+        out[name] = nums[0] if len(nums) == 1 else nums
+    return out
+
+
+def _load_table(path, subsample=None, seed=0, with_full=False):
+    """The table at ``path``, subsampled to ``subsample`` valid rows (``(subsampled, full)`` with ``with_full``)."""
+    from .io import load
+
+    p = Path(path)
+    if not p.exists():
+        raise ValueError(f"{path}: no such file")
+    full = table = load(p)
+    if table.n_valid == 0:
+        raise ValueError(f"{path}: the table has no valid rows")
+    if subsample is not None:
+        if subsample < 1:
+            raise ValueError(f"--subsample must be a positive number of rows, got {subsample}")
+        if subsample < table.n_valid:
+            table = table.subsample(subsample, seed=seed)
+    return (table, full) if with_full else table
+
+
+def _param_table(result, truth_params=None, posterior=None):
+    from .report import _truth_for_label
+
+    head = f"  {'parameter':14s} {'value':>12s} {'std. error':>11s}"
+    post = {}
+    if posterior is not None:
+        head += f" {'post. median':>12s} {'90% interval':>25s}"
+        post = {lab: i for i, lab in enumerate(posterior.labels)}
+    if truth_params:
+        head += f" {'truth':>12s} {'error/se':>9s}"
+    lines = [head]
+    for lab, v, se in zip(result.labels, result.values, result.stderr):
+        line = f"  {lab:14s} {v:12.6g} {se:11.3g}"
+        if posterior is not None:
+            i = post.get(lab)
+            line += (f" {posterior.median[i]:12.6g} {'[%.5g, %.5g]' % tuple(posterior.ci90[i]):>25s}" if i is not None
+                     else f" {'-':>12s} {'-':>25s}")
+        if truth_params:
+            tv = _truth_for_label(truth_params, lab)
+            line += (f" {tv:12.6g} {(v - tv) / se if se > 0 else float('nan'):9.2f}" if tv is not None
+                     else f" {'-':>12s} {'-':>9s}")
+        lines.append(line)
+    if posterior is not None:
+        for lab in posterior.labels:
+            if lab not in result.labels:
+                i = post[lab]
+                lines.append(f"  {lab:14s} {'-':>12s} {'-':>11s} {posterior.median[i]:12.6g} "
+                             f"{'[%.5g, %.5g]' % tuple(posterior.ci90[i]):>25s}")
+    return "\n".join(lines)
+
+
+def _cmd_fit(args):
+    from .fitting.select import robust_fit
+    from .report import truth_from_table, write_report
+
+    table, full = _load_table(args.table, args.subsample, args.seed, with_full=True)
+    fixed = _parse_fixed(args.fixed)
+    method = "lm" if args.method == "mcmc" else args.method
+    result = robust_fit(table, args.model, method=method, loss=args.loss, fixed=fixed, starts=args.starts,
+                        max_steps=args.max_steps, seed=args.seed)
+    posterior = None
+    if args.method == "mcmc":
+        try:
+            from .fitting.mcmc import sample_posterior
+        except ImportError:
+            raise ValueError("--method mcmc needs matfit.fitting.mcmc, which is not available") from None
+        noise = "table" if table.sigma is not None and args.loss == "l2" else "fit"
+        posterior = sample_posterior(table, model=args.model, fixed=fixed, loss=args.loss, noise=noise, start=result,
+                                     max_steps=args.mcmc_steps, seed=args.seed, progress=False)
+    truth = truth_from_table(table, args.model)
+    tparams = truth["params"] if truth else None
+    print(result.summary().splitlines()[0])
+    if posterior is not None:
+        print(posterior.summary().splitlines()[0])
+    print(_param_table(result, tparams, posterior))
+    if result.params and any(not any(l == k or l.startswith(k + "[") for l in result.labels) for k in result.params):
+        print("  fixed: " + ", ".join(f"{k}={np.asarray(v).round(6).tolist()}" for k, v in result.params.items()
+                                      if not any(l == k or l.startswith(k + "[") for l in result.labels)))
+    if args.report:
+        write_report(result, full, args.report, posterior=posterior, truth=truth,
+                     title=f"{args.model} fit of {Path(args.table).name}")
+        print(f"wrote report to {Path(args.report) / 'report.md'}")
+    return 0
+
+
+def _cmd_compare(args):
+    import json
+
+    from .fitting import compare_models
+
+    table = _load_table(args.table, args.subsample, args.seed)
+    models = [m.strip() for m in args.models.split(",") if m.strip()]
+    cmp = compare_models(table, models=models, holdout=args.holdout, seed=args.seed, tol=args.tol,
+                         method=args.method, loss=args.loss, fixed=_parse_fixed(args.fixed), starts=args.starts)
+    print(cmp.summary())
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        with open(args.json, "w") as fh:
+            json.dump(cmp.to_dict(), fh, indent=2)
+        print(f"wrote {args.json}")
+    return 0
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (exit status 2)."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def _positive_int(s):
+    try:
+        v = int(s)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {s!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {s!r}")
+    return v
+
+
+def _fraction(s):
+    try:
+        v = float(s)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a fraction in (0, 1), got {s!r}") from None
+    if not 0 < v < 1:
+        raise argparse.ArgumentTypeError(f"expected a fraction in (0, 1), got {s!r}")
+    return v
+
+
 def build_parser():
-    p = argparse.ArgumentParser(prog="matfit", description="Differentiable physically based material fitting.")
+    from .fitting import FAMILIES, LOSSES
+
+    p = _Parser(prog="matfit", description="Differentiable physically based material fitting.")
     sub = p.add_subparsers(dest="command", required=True)
     d = sub.add_parser("demo", help="run the main job on a built-in scene")
     d.add_argument("--out", default="demo_out", help="output folder (default: demo_out)")
@@ -72,6 +229,42 @@ def build_parser():
     inf = sub.add_parser("info", help="summarize a table or measured file (.npz .csv .binary .bsdf .alta)")
     inf.add_argument("table", help="file to summarize")
     inf.set_defaults(func=_cmd_info)
+
+    families = sorted(FAMILIES)
+    fi = sub.add_parser("fit", help="fit a model family to a table or measured file")
+    fi.add_argument("table", help="table or measured file (.npz .csv .binary .bsdf .alta)")
+    fi.add_argument("--model", required=True, choices=families, metavar="NAME",
+                    help=f"model family: {', '.join(families)}")
+    fi.add_argument("--method", default="lm", choices=["lm", "gn", "dogleg", "bfgs", "lbfgs", "mcmc"],
+                    help="solver (default lm); mcmc: lm, then posterior sampling")
+    fi.add_argument("--loss", default="l2", choices=list(LOSSES), help="loss (default l2)")
+    fi.add_argument("--fixed", nargs="+", action="extend", default=[], metavar="NAME=VALUE",
+                    help="hold parameters fixed, e.g. --fixed eta=1.5 albedo=0.2,0.3,0.4")
+    fi.add_argument("--subsample", type=_positive_int, default=None, metavar="N",
+                    help="fit N random valid rows (the report still uses the whole table)")
+    fi.add_argument("--report", default=None, metavar="DIR", help="write a report (Markdown, PNG, JSON) into DIR")
+    fi.add_argument("--starts", type=_positive_int, default=4, help="number of starts (default 4)")
+    fi.add_argument("--max-steps", type=_positive_int, default=256, help="solver steps per start (default 256)")
+    fi.add_argument("--mcmc-steps", type=_positive_int, default=4000,
+                    help="cap on MCMC steps, burn-in included (default 4000; min 100)")
+    fi.add_argument("--seed", type=int, default=0, help="seed of starts, subsample and sampler (default 0)")
+    fi.set_defaults(func=_cmd_fit)
+
+    co = sub.add_parser("compare", help="compare model families on a hold-out split")
+    co.add_argument("table", help="table or measured file (.npz .csv .binary .bsdf .alta)")
+    co.add_argument("--models", default="lambert,conductor,plastic",
+                    help="comma-separated families (default lambert,conductor,plastic)")
+    co.add_argument("--holdout", type=_fraction, default=0.2, help="hold-out fraction (default 0.2)")
+    co.add_argument("--tol", type=float, default=0.02,
+                    help="relative hold-out tolerance for preferring a simpler family (default 0.02)")
+    co.add_argument("--method", default="lm", choices=["lm", "gn", "dogleg", "bfgs", "lbfgs"], help="solver")
+    co.add_argument("--loss", default="l2", choices=list(LOSSES), help="loss (default l2)")
+    co.add_argument("--fixed", nargs="+", action="extend", default=[], metavar="NAME=VALUE", help="as for fit (families that have it)")
+    co.add_argument("--subsample", type=_positive_int, default=None, metavar="N", help="use N random valid rows")
+    co.add_argument("--starts", type=_positive_int, default=4, help="number of starts (default 4)")
+    co.add_argument("--seed", type=int, default=0, help="seed of the split (default 0)")
+    co.add_argument("--json", default=None, metavar="FILE", help="also write the comparison as JSON")
+    co.set_defaults(func=_cmd_compare)
     return p
 
 
@@ -82,5 +275,6 @@ def main(argv=None):
     try:
         return args.func(args)
     except (ValueError, OSError) as exc:  # clear one-line errors for the user
-        print(f"matfit {args.command}: error: {exc}", file=sys.stderr)
+        msg = " ".join(str(exc).split()) or type(exc).__name__
+        print(f"matfit {args.command}: error: {msg}", file=sys.stderr)
         return 2

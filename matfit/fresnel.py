@@ -139,9 +139,10 @@ def fresnel_schlick(cos_theta_i, f0):
 def fresnel_dielectric_average(eta, n=64):
     r"""Hemispherical (cosine-weighted) average :math:`2\int_0^1 F(\mu)\,\mu\,d\mu`.
 
-    Computed by Gauss-Legendre quadrature of order ``n``; under total internal reflection
-    (``eta < 1``) the part below the critical cosine :math:`\sqrt{1-\eta^2}` is integrated in
-    closed form so that the kink does not spoil convergence.
+    Computed by Gauss-Legendre quadrature of order ``n`` for ``eta >= 1``; for ``eta < 1``
+    (total internal reflection) through the exact energy balance
+    :math:`\bar F(\eta) = 1 - \eta^2 (1 - \bar F(1/\eta))`, which avoids the kink at the
+    critical angle.
 
     Parameters
     ----------
@@ -160,8 +161,10 @@ def fresnel_dielectric_average(eta, n=64):
     x, w = np.polynomial.legendre.leggauss(n)
     x = jnp.asarray(0.5 * (x + 1), dtype=jnp.result_type(eta, float))
     w = jnp.asarray(0.5 * w, dtype=x.dtype)
-    mu_c = safe_sqrt(1 - sq(jnp.minimum(eta, 1)))  # critical cosine (0 when eta >= 1)
-    mu = mu_c[..., None] + (1 - mu_c[..., None]) * x
-    f = fresnel_dielectric(mu, eta[..., None])
-    part = (1 - mu_c) * jnp.sum(w * f * mu, axis=-1)
-    return 2 * part + sq(mu_c)
+    # Integrate from the denser side's complement: for eta < 1 use the exact balance
+    # F_avg(eta) = 1 - eta^2 (1 - F_avg(1/eta)), whose integrand has no kink.
+    inv = eta < 1
+    e = jnp.where(inv, 1 / eta, eta)
+    f = fresnel_dielectric(x, e[..., None])
+    avg = 2 * jnp.sum(w * f * x, axis=-1)
+    return jnp.where(inv, 1 - sq(eta) * (1 - avg), avg)

@@ -9,3 +9,9 @@ __all__ = [
     "LOSSES", "residuals",
     "METHODS", "FitError", "FitResult", "fit", "fit_batch", "initial_guess",
 ]
+from .mcmc import NOISE_MODES, LogProb, PosteriorResult, SamplingError, make_log_prob, sample_posterior
+
+__all__ += ["NOISE_MODES", "LogProb", "PosteriorResult", "SamplingError", "make_log_prob", "sample_posterior"]
+from .select import ModelComparison, compare_models, recommend, robust_fit  # noqa: E402
+
+__all__ += ["ModelComparison", "compare_models", "recommend", "robust_fit"]

@@ -50,9 +50,11 @@ class BlinnPhong(AbstractDistribution):
         ex, ey = self.exponent
         mz = m[..., 2]
         pos = mz > 0
-        # cos^e = exp(e/2 log(1 - sin^2)): log1p of sin^2 keeps float32 accurate at e ~ 1e6.
+        # cos^e = exp(e log cos): log cos from sin^2 by log1p keeps float32 accurate at e ~ 1e6.
         sin2 = jnp.minimum(sq(m[..., 0]) + sq(m[..., 1]), 1.0)
-        log_cos = 0.5 * jnp.log1p(-jnp.where(pos, jnp.minimum(sin2, 1 - 1e-7), 0.0))
+        # Near the normal log1p(-sin^2) is exact; near grazing log(m_z) is (no cancellation).
+        near = sq(mz) >= 0.5
+        log_cos = jnp.where(near, 0.5 * jnp.log1p(-jnp.where(near, sin2, 0.0)), jnp.log(jnp.where(pos & ~near, mz, 1.0)))
         d = jnp.sqrt((ex + 2) * (ey + 2)) / (2 * jnp.pi) * jnp.exp(self._e_phi(m) * log_cos)
         return jnp.where(pos, d, 0)
 

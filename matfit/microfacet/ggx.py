@@ -45,7 +45,9 @@ class GGX(AbstractDistribution):
         return jnp.where(m[..., 2] > 0, d, 0)
 
     def Lambda(self, v):
-        return 0.5 * (jnp.sqrt(1 + self._a2tan2(v)) - 1)
+        t = self._a2tan2(v)
+        # (sqrt(1 + t) - 1)/2 written without cancellation near the normal (t -> 0).
+        return t / (2 * (1 + jnp.sqrt(1 + t)))
 
     def sample_dcos(self, u):
         ax, ay = self._alphas()

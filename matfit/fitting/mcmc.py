@@ -1,0 +1,545 @@
+r"""Posterior sampling with emcee over the same parameter space as :func:`matfit.fitting.fit`.
+
+The walkers move in the unconstrained vector ``z`` of :class:`~matfit.fitting.Parametrization`
+(the same bijections as the least-squares fit), and every reported quantity is in the natural
+parameters ``theta(z)``. The log-probability is
+
+.. math::
+
+    \log p(z \mid y) = \log L(\theta(z)) + \log \pi(\theta(z)) + \log\left|\frac{d\theta}{dz}\right|
+
+(up to a constant), evaluated by **one** jitted, ``vmap``-ed JAX function of a batch of walkers
+(numpy in, numpy out) that emcee calls with ``vectorize=True``.
+
+Likelihood (Gaussian, independent residuals, full normalization)
+    * ``noise="table"``: the table's ``sigma`` is the noise: with the residuals ``r`` of
+      :func:`~matfit.fitting.losses.residuals` (weights ``1/sigma^2``),
+      :math:`\log L = \sum_i [-r_i^2/2 - \log\sigma_i - \log(2\pi)/2]` over the usable entries.
+      For ``loss="l2"`` this is the exact likelihood of ``y ~ N(f, sigma^2)``; for the other
+      losses it treats ``sigma`` as the standard deviation in the loss's space (a pseudo
+      likelihood).
+    * ``noise="fit"``: the noise scale is sampled too (an extra parameter, label
+      ``noise_scale``): a **relative** noise model ``sigma_i = s |t(y_i)| + floor``, where
+      ``t(y)`` is the measured value in the loss's space (``y`` for ``"l2"``, ``y cos(theta_i)``
+      for ``"cosine"``, ``log(1 + y cos(theta_i))`` for ``"e2"``, ``y/(|y| + eps)`` for
+      ``"relative"``) and ``floor`` a small absolute term (default ``1e-5 *`` the median
+      ``|t(y)|``) that keeps ``sigma > 0`` where ``y = 0``. The table's ``sigma``/``weight`` then
+      only selects the usable entries (weight > 0). The walkers move in ``log s`` with a prior
+      uniform in ``log s`` on ``[1e-6, 10]`` (scale invariant).
+
+Priors on the model parameters
+    * ``prior="uniform"``: uniform in each natural parameter within its bounds
+      (:class:`~matfit.fitting.Param`), i.e. ``-log(upper - lower)`` per bounded component; the
+      change of variables adds :meth:`Parametrization.log_jacobian`.
+    * ``prior={"alpha": (0.3, 0.1), "eta": (1.5, 0.2), ...}``: independent Gaussian priors
+      ``N(mean, sd)`` on the natural parameters, truncated to the bounds (unnormalized
+      truncation). Keys are parameter names (applied to every component of a per-channel
+      parameter; ``mean``/``sd`` may then be per-channel sequences) or single labels such as
+      ``"albedo[1]"``. Parameters not named keep the uniform prior.
+
+Run length
+    The walkers start in a small ball around a least-squares fit (``start``, by default
+    :func:`~matfit.fitting.fit` is run first). The burn-in runs in chunks until it is at least
+    ``burn_factor`` (5) times the largest integrated autocorrelation time estimated on its second
+    half; the sampler is then reset and the production run is extended in chunks, re-estimating
+    ``tau`` with emcee's ``get_autocorr_time(tol=0)``, until its length exceeds
+    ``tau_factor * max(tau)`` (``converged=True``) or the total step count reaches ``max_steps``
+    (``converged=False``). The stored chain is thinned by ``thin = max(1, floor(min(tau) / 2))``
+    unless ``thin`` is given.
+
+References
+----------
+- D. Foreman-Mackey, D. W. Hogg, D. Lang, J. Goodman, "emcee: The MCMC Hammer", PASP 125, 2013.
+- J. Goodman, J. Weare, "Ensemble samplers with affine invariance", CAMCoS 5(1), 2010.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+import time
+from dataclasses import dataclass, field
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..errors import MatfitError, ParameterError
+from ..table import Table
+from .losses import check_loss, residuals
+from .params import Parametrization, get_family
+
+__all__ = ["PosteriorResult", "LogProb", "SamplingError", "make_log_prob", "sample_posterior", "NOISE_MODES"]
+
+NOISE_MODES = ("table", "fit")
+#: Bounds of the noise scale ``s`` for ``noise="fit"`` (prior uniform in ``log s`` between them).
+NOISE_SCALE_BOUNDS = (1e-6, 10.0)
+NOISE_LABEL = "noise_scale"
+_LOG2PI = math.log(2 * math.pi)
+NPZ_FORMAT = "matfit.posterior/1"
+
+
+class SamplingError(MatfitError):
+    """The sampler cannot run as asked (no finite starting point, ...)."""
+
+
+# --------------------------------------------------------------------------------------------
+# The compiled log-probability (cached per configuration: new tables of the same shape, new
+# priors and new noise floors do not recompile).
+@functools.lru_cache(maxsize=32)
+def _compiled(family, channels, fixed_items, tied, loss, noise):
+    par = Parametrization(family, channels, dict(fixed_items), tied)
+    p = par.size
+    lo, hi = par.lower_upper()
+    uni = np.where(np.isfinite(hi), -np.log(np.where(np.isfinite(hi), hi - lo, 1.0)), 0.0)
+    ls_lo, ls_hi = (math.log(b) for b in NOISE_SCALE_BOUNDS)
+
+    def one(x, args):
+        wo, wi, values, weight, floor, pmask, pmean, psd = args
+        z = x[:p]
+        usable = weight > 0
+        n = jnp.sum(usable)
+        pred = par.model(z).eval(wo, wi)
+        cos_i = wi[..., 2]
+        if noise == "table":
+            r = residuals(pred, values, weight, cos_i, loss)
+            logw = jnp.log(jnp.where(usable, weight, 1.0))
+            ll = -0.5 * jnp.sum(r * r) + 0.5 * jnp.sum(logw) - 0.5 * n * _LOG2PI
+            lp_noise = 0.0
+        else:
+            one_w = usable.astype(values.dtype)
+            r = residuals(pred, values, one_w, cos_i, loss)
+            t = jnp.abs(residuals(jnp.zeros_like(values), values, one_w, cos_i, loss))
+            logs = x[p]
+            sig = jnp.exp(logs) * t + floor
+            sig = jnp.where(usable, sig, 1.0)
+            ll = jnp.sum(jnp.where(usable, -0.5 * (r / sig) ** 2 - jnp.log(sig), 0.0)) - 0.5 * n * _LOG2PI
+            lp_noise = jnp.where((logs >= ls_lo) & (logs <= ls_hi), -math.log(ls_hi - ls_lo), -jnp.inf)
+        theta = par.theta_vector(z)
+        gauss = -0.5 * ((theta - pmean) / psd) ** 2 - jnp.log(psd) - 0.5 * _LOG2PI
+        lprior = jnp.sum(jnp.where(pmask, gauss, jnp.asarray(uni, theta.dtype)))
+        tot = ll + lp_noise + lprior + par.log_jacobian(z)
+        return jnp.where(jnp.isfinite(tot), tot, -jnp.inf)
+
+    batched = jax.jit(jax.vmap(one, in_axes=(0, None)))
+    to_natural = jax.jit(par.theta_vector)
+    return par, batched, to_natural
+
+
+def _fixed_items(fixed):
+    return tuple(sorted((k, tuple(np.atleast_1d(np.asarray(v, float)).tolist())) for k, v in (fixed or {}).items()))
+
+
+def _prior_arrays(prior, par):
+    """(mask, mean, sd) vectors over the free parameters for a prior spec, and a description."""
+    p = par.size
+    mask, mean, sd = np.zeros(p, bool), np.zeros(p), np.ones(p)
+    if isinstance(prior, str):
+        if prior != "uniform":
+            raise ParameterError(f"sample_posterior: prior must be 'uniform' or a dict of (mean, sd), got {prior!r}")
+        return mask, mean, sd, "uniform"
+    if not isinstance(prior, dict):
+        raise ParameterError(f"sample_posterior: prior must be 'uniform' or a dict of (mean, sd), "
+                             f"got {type(prior).__name__}")
+    labels = par.labels
+    slices, i = {}, 0
+    for prm, n in zip(par.free, par.sizes):
+        slices[prm.name] = slice(i, i + n)
+        i += n
+    desc = {}
+    for key, spec in prior.items():
+        if key in slices:
+            sl = slices[key]
+        elif key in labels:
+            j = labels.index(key)
+            sl = slice(j, j + 1)
+        else:
+            raise ParameterError(f"sample_posterior: prior names {key!r}, which is not a free parameter "
+                                 f"(free: {labels})")
+        try:
+            m, s = spec
+            m = np.broadcast_to(np.asarray(m, float), (sl.stop - sl.start,))
+            s = np.broadcast_to(np.asarray(s, float), (sl.stop - sl.start,))
+        except (TypeError, ValueError):
+            raise ParameterError(f"sample_posterior: prior[{key!r}] must be a (mean, sd) pair of numbers or "
+                                 f"per-channel sequences, got {spec!r}") from None
+        if not (np.all(np.isfinite(m)) and np.all(np.isfinite(s)) and np.all(s > 0)):
+            raise ParameterError(f"sample_posterior: prior[{key!r}] needs a finite mean and sd > 0, got {spec!r}")
+        mask[sl], mean[sl], sd[sl] = True, m, s
+        desc[key] = [m.tolist(), s.tolist()]
+    return mask, mean, sd, "gaussian " + json.dumps(desc)
+
+
+class LogProb:
+    """The vectorized log-posterior of one table: ``lp(X)`` maps an (n, d) numpy array of walkers
+    (``z`` and, with ``noise="fit"``, ``log s`` last) to (n,) float64 log-probabilities.
+
+    Calls are evaluated in fixed-size blocks (``block`` rows, padded) so that the jitted function
+    compiles once per configuration and block size.
+    """
+
+    def __init__(self, par, batched, to_natural, args, noise, prior_desc, block, dtype):
+        self.par, self._batched, self._to_natural, self.args = par, batched, to_natural, args
+        self.noise, self.prior = noise, prior_desc
+        self.block = int(block)
+        self.dtype = np.dtype(dtype)
+        self.ndim = par.size + (noise == "fit")
+        self.labels = list(par.labels) + ([NOISE_LABEL] if noise == "fit" else [])
+
+    def __call__(self, X):
+        X = np.asarray(X, dtype=np.float64)
+        single = X.ndim == 1
+        X = np.atleast_2d(X)
+        if X.shape[-1] != self.ndim:
+            raise ParameterError(f"log-probability: expected points with {self.ndim} coordinates, got shape {X.shape}")
+        out = np.empty(len(X))
+        b = self.block
+        for i in range(0, len(X), b):
+            part = X[i:i + b]
+            k = len(part)
+            if k < b:
+                part = np.concatenate([part, np.repeat(part[-1:], b - k, axis=0)])
+            res = self._batched(part.astype(self.dtype, copy=False), self.args)
+            out[i:i + k] = np.asarray(res, dtype=np.float64)[:k]
+        return out[0] if single else out
+
+    def to_natural(self, X):
+        """Natural parameter values (and ``s``) for walkers ``X`` (..., d)."""
+        X = np.asarray(X, dtype=np.float64)
+        p = self.par.size
+        th = np.asarray(self._to_natural(jnp.asarray(X[..., :p], dtype=self.dtype)), dtype=np.float64)
+        if self.noise == "fit":
+            th = np.concatenate([th, np.exp(X[..., p:])], axis=-1)
+        return th
+
+
+def make_log_prob(table, model="plastic", fixed=None, tied=(), loss="l2", noise="table", prior="uniform",
+                  noise_floor=None, block=None, dtype=None) -> LogProb:
+    """The log-posterior :class:`LogProb` that :func:`sample_posterior` hands to emcee (see the
+    module docstring for the likelihood, the priors and the noise models).
+
+    Arguments are those of :func:`sample_posterior`; ``block`` is the number of points per
+    compiled call (inputs are padded to it; default 8, ``sample_posterior`` uses half the
+    ensemble). With ``noise="fit"`` the points are ``(z, log s)``; ``to_natural`` maps them to
+    the natural parameters and ``s``.
+    """
+    if not isinstance(table, Table):
+        raise ParameterError(f"sample_posterior: table must be a matfit.Table, got {type(table).__name__}")
+    get_family(model)
+    check_loss(loss, None)
+    if noise not in NOISE_MODES:
+        raise ParameterError(f"sample_posterior: noise must be one of {list(NOISE_MODES)}, got {noise!r}")
+    if noise == "table" and table.sigma is None:
+        raise ParameterError("sample_posterior: noise='table' needs a table with sigma (standard deviations); "
+                             "use noise='fit' to sample a relative noise scale instead")
+    if isinstance(tied, str):
+        tied = (tied,)
+    par, batched, to_natural = _compiled(model, table.n_channels, _fixed_items(fixed), tuple(tied), loss, noise)
+    pmask, pmean, psd, pdesc = _prior_arrays(prior, par)
+    weight = table.effective_weight()
+    n_res = int(np.count_nonzero(weight > 0))
+    if n_res <= par.size + (noise == "fit"):
+        raise ParameterError(f"sample_posterior: the table has {n_res} usable residuals for "
+                             f"{par.size + (noise == 'fit')} free parameters")
+    a = table.as_jax(dtype)
+    dt = a.values.dtype
+    floor = 0.0
+    if noise == "fit":
+        if noise_floor is None:
+            usable = weight > 0
+            cos_i = np.asarray(table.wi)[:, 2]
+            t = np.abs(np.asarray(residuals(jnp.zeros_like(a.values), a.values, jnp.asarray(usable, dt),
+                                            jnp.asarray(cos_i, dt), loss)))
+            floor = 1e-5 * float(np.median(t[usable]))
+            floor = floor if floor > 0 else 1e-12
+        else:
+            floor = float(noise_floor)
+            if not (math.isfinite(floor) and floor > 0):
+                raise ParameterError(f"sample_posterior: noise_floor must be finite and > 0, got {noise_floor!r}")
+    elif noise_floor is not None:
+        raise ParameterError("sample_posterior: noise_floor is only used with noise='fit'")
+    args = (a.wo, a.wi, a.values, a.weight, jnp.asarray(floor, dt), jnp.asarray(pmask),
+            jnp.asarray(pmean, dt), jnp.asarray(psd, dt))
+    lp = LogProb(par, batched, to_natural, args, noise, pdesc, block or 8, dt)
+    lp.noise_floor = floor
+    return lp
+
+
+# --------------------------------------------------------------------------------------------
+@dataclass
+class PosteriorResult:
+    """The outcome of :func:`sample_posterior` (all values in natural units).
+
+    Attributes
+    ----------
+    family, loss, noise, prior : str
+    labels : names of the sampled parameters (``noise_scale`` last with ``noise="fit"``)
+    chain : (steps, walkers, p) production chain after burn-in, thinned by ``thin``
+    log_prob : (steps, walkers) log-posterior of the stored samples
+    median, mean, std : (p,)
+    ci90 : (p, 2) 5th and 95th percentiles;  ci68 : (p, 2) 16th and 84th percentiles
+    acceptance_fraction : (walkers,) production acceptance fraction of each walker
+    autocorr_time : (p,) integrated autocorrelation time of the production run (in steps)
+    n_effective : (p,) walkers * production steps / autocorr_time
+    burn_in : steps discarded;  n_steps : production steps (before thinning);  thin
+    n_walkers, tau_factor
+    converged : n_steps > tau_factor * max(autocorr_time)
+    wall_time : seconds;  noise_floor : the absolute floor of the relative noise model (0 unless noise="fit")
+    """
+
+    family: str
+    loss: str
+    noise: str
+    prior: str
+    labels: list
+    chain: np.ndarray
+    log_prob: np.ndarray
+    median: np.ndarray
+    mean: np.ndarray
+    std: np.ndarray
+    ci90: np.ndarray
+    ci68: np.ndarray
+    acceptance_fraction: np.ndarray
+    autocorr_time: np.ndarray
+    n_effective: np.ndarray
+    burn_in: int
+    n_steps: int
+    thin: int
+    n_walkers: int
+    tau_factor: float
+    converged: bool
+    wall_time: float
+    noise_floor: float = 0.0
+    fixed: dict = field(default_factory=dict)
+    tied: tuple = ()
+
+    @property
+    def samples(self):
+        """The chain flattened to (steps * walkers, p)."""
+        return self.chain.reshape(-1, self.chain.shape[-1])
+
+    def interval(self, level=0.9):
+        """Central credible interval (p, 2) at ``level`` from the stored samples."""
+        if not 0 < level < 1:
+            raise ParameterError(f"interval: level must be in (0, 1), got {level!r}")
+        q = 50 * (1 - level)
+        return np.percentile(self.samples, [q, 100 - q], axis=0).T
+
+    def summary(self) -> str:
+        lines = [f"{self.family} posterior ({self.loss}, noise={self.noise}, prior={self.prior}): "
+                 f"{self.n_walkers} walkers, burn-in {self.burn_in}, {self.n_steps} steps (thin {self.thin}), "
+                 f"acceptance {np.mean(self.acceptance_fraction):.2f}, converged={self.converged} "
+                 f"(tau_factor {self.tau_factor:g}), {self.wall_time:.1f} s",
+                 f"  {'parameter':14s} {'median':>11s} {'5%':>11s} {'95%':>11s} {'16%':>11s} {'84%':>11s} "
+                 f"{'tau':>7s} {'n_eff':>7s}"]
+        for i, lab in enumerate(self.labels):
+            lines.append(f"  {lab:14s} {self.median[i]:11.5g} {self.ci90[i, 0]:11.5g} {self.ci90[i, 1]:11.5g} "
+                         f"{self.ci68[i, 0]:11.5g} {self.ci68[i, 1]:11.5g} {self.autocorr_time[i]:7.1f} "
+                         f"{self.n_effective[i]:7.0f}")
+        return "\n".join(lines)
+
+    _ARRAYS = ("chain", "log_prob", "median", "mean", "std", "ci90", "ci68", "acceptance_fraction",
+               "autocorr_time", "n_effective")
+    _SCALARS = ("family", "loss", "noise", "prior", "burn_in", "n_steps", "thin", "n_walkers", "tau_factor",
+                "converged", "wall_time", "noise_floor", "fixed", "tied")
+
+    def save(self, path, **extra):
+        """Write the chains and the summaries to ``path`` (``.npz``, readable without pickle).
+
+        ``extra`` JSON-serializable entries (e.g. a report) are stored in the metadata.
+        """
+        meta = {k: getattr(self, k) for k in self._SCALARS}
+        meta["fixed"] = {k: np.asarray(v, float).tolist() for k, v in self.fixed.items()}
+        meta["tied"] = list(self.tied)
+        meta["format"] = NPZ_FORMAT
+        meta["extra"] = extra
+        arrays = {k: np.asarray(getattr(self, k)) for k in self._ARRAYS}
+        np.savez(path, labels=np.asarray(self.labels, dtype=str), meta=np.asarray(json.dumps(meta)), **arrays)
+
+    @classmethod
+    def load(cls, path) -> "PosteriorResult":
+        """Read a file written by :meth:`save`."""
+        with np.load(path, allow_pickle=False) as f:
+            meta = json.loads(str(f["meta"]))
+            if meta.get("format") != NPZ_FORMAT:
+                raise ParameterError(f"{path}: not a {NPZ_FORMAT} file (format {meta.get('format')!r})")
+            kw = {k: f[k].copy() for k in cls._ARRAYS}
+            labels = [str(s) for s in f["labels"]]
+        kw.update({k: meta[k] for k in cls._SCALARS})
+        kw["tied"] = tuple(kw["tied"])
+        return cls(labels=labels, **kw)
+
+
+# --------------------------------------------------------------------------------------------
+def _check_int(name, v, lo):
+    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+        raise ParameterError(f"sample_posterior: {name} must be an integer >= {lo}, got {v!r}")
+    return int(v)
+
+
+def _tau(sampler, discard=0):
+    tau = np.asarray(sampler.get_autocorr_time(tol=0, discard=discard, quiet=True), float)
+    return np.where(np.isfinite(tau) & (tau > 0), tau, 1.0)
+
+
+def sample_posterior(table, model="plastic", fixed=None, tied=(), loss="l2", noise="table", prior="uniform",
+                     n_walkers=None, max_steps=20000, tau_factor=50, start=None, seed=0, progress=True,
+                     chunk=200, burn_factor=5, thin=None, noise_floor=None, dtype=None) -> PosteriorResult:
+    """Sample the posterior of a model family's parameters given a table, with emcee.
+
+    Parameters
+    ----------
+    table : matfit.Table
+    model, fixed, tied, loss : as for :func:`matfit.fitting.fit` (no robust losses).
+    noise : {"table", "fit"}
+        ``"table"``: the table's ``sigma`` (required) is the noise. ``"fit"``: a relative noise
+        scale ``s`` (``sigma = s |value| + noise_floor``) is sampled as well.
+    prior : "uniform" or dict
+        Uniform in the natural parameters within their bounds, or Gaussian ``(mean, sd)`` per
+        parameter name or label (see the module docstring).
+    n_walkers : int, optional
+        Even, at least twice the number of sampled parameters; default ``4 p`` (at least 8).
+    max_steps : int
+        Cap on the total number of steps (burn-in and production).
+    tau_factor : float
+        The production run is extended until it is longer than ``tau_factor * max(tau)``.
+    start : FitResult, optional
+        The walkers start in a small ball around ``start.z`` (radius a tenth of its standard
+        errors in ``z``); by default :func:`matfit.fitting.fit` is run first.
+    seed : int
+    progress : bool
+        emcee's progress bar (tqdm) for every chunk.
+    chunk : int
+        Minimum number of steps per chunk.
+    burn_factor : float
+        The burn-in is at least ``burn_factor`` autocorrelation times.
+    thin : int, optional
+        Thinning of the stored chain; default ``max(1, floor(min(tau) / 2))``.
+    noise_floor : float, optional
+        Absolute floor of the relative noise model (``noise="fit"`` only).
+    dtype : JAX float dtype of the computation (default: JAX's default float).
+
+    Returns
+    -------
+    PosteriorResult
+    """
+    import emcee
+
+    from .fit import FitResult, fit
+
+    t0 = time.perf_counter()
+    if not isinstance(table, Table):
+        raise ParameterError(f"sample_posterior: table must be a matfit.Table, got {type(table).__name__}")
+    max_steps = _check_int("max_steps", max_steps, 100)
+    chunk = _check_int("chunk", chunk, 10)
+    if isinstance(tau_factor, bool) or not isinstance(tau_factor, (int, float)) or not tau_factor > 0:
+        raise ParameterError(f"sample_posterior: tau_factor must be a number > 0, got {tau_factor!r}")
+    if isinstance(burn_factor, bool) or not isinstance(burn_factor, (int, float)) or not burn_factor >= 0:
+        raise ParameterError(f"sample_posterior: burn_factor must be a number >= 0, got {burn_factor!r}")
+    if thin is not None:
+        thin = _check_int("thin", thin, 1)
+    if isinstance(tied, str):
+        tied = (tied,)
+    lp = make_log_prob(table, model, fixed, tied, loss, noise, prior, noise_floor, None, dtype)
+    par, d = lp.par, lp.ndim
+    if n_walkers is None:
+        n_walkers = max(4 * d, 8)
+        n_walkers += n_walkers % 2
+    n_walkers = _check_int("n_walkers", n_walkers, 2 * d)
+    if n_walkers % 2:
+        raise ParameterError(f"sample_posterior: n_walkers must be even, got {n_walkers}")
+    lp.block = n_walkers // 2  # emcee's stretch move evaluates half the ensemble at a time
+
+    if start is None:
+        start = fit(table, model=model, loss=loss, fixed=fixed, tied=tied, dtype=dtype)
+    if not isinstance(start, FitResult):
+        raise ParameterError(f"sample_posterior: start must be a FitResult, got {type(start).__name__}")
+    if start.family != model or list(start.labels) != list(par.labels) or start.z is None:
+        raise ParameterError(f"sample_posterior: start is a {start.family!r} fit with parameters {start.labels}, "
+                             f"expected {model!r} with {par.labels}")
+
+    rng = np.random.default_rng(seed)
+    z0 = np.asarray(start.z, float)
+    dth = np.abs(np.asarray(jax.jacfwd(par.theta_vector)(jnp.asarray(z0))).diagonal())
+    with np.errstate(divide="ignore", invalid="ignore"):
+        se_z = np.asarray(start.stderr, float) / dth
+    radius = np.where(np.isfinite(se_z) & (se_z > 0), np.clip(0.1 * se_z, 1e-5, 0.5), 1e-3)
+    center = z0
+    if noise == "fit":
+        # Profile the noise scale at the fitted parameters on a log grid, then refine.
+        ls_lo, ls_hi = (math.log(b) for b in NOISE_SCALE_BOUNDS)
+        grid = np.linspace(ls_lo, ls_hi, 64)
+        for _ in range(2):
+            vals = lp(np.column_stack([np.repeat(z0[None], len(grid), 0), grid]))
+            best = grid[int(np.argmax(vals))]
+            step = grid[1] - grid[0]
+            grid = np.linspace(max(best - step, ls_lo), min(best + step, ls_hi), 64)
+        center = np.append(z0, best)
+        radius = np.append(radius, 0.02)
+    p0 = center + radius * rng.standard_normal((n_walkers, d))
+    lp0 = lp(p0)
+    for _ in range(20):
+        bad = ~np.isfinite(lp0)
+        if not bad.any():
+            break
+        radius = radius / 2
+        p0[bad] = center + radius * rng.standard_normal((int(bad.sum()), d))
+        lp0[bad] = lp(p0[bad])
+    if not np.all(np.isfinite(lp0)):
+        raise SamplingError(f"sample_posterior: no finite log-probability near the start {start.values}")
+
+    sampler = emcee.EnsembleSampler(n_walkers, d, lp, vectorize=True)
+    state = emcee.State(p0, log_prob=lp0, random_state=np.random.RandomState(seed).get_state())
+
+    # ---- burn-in: at least burn_factor * tau (tau estimated on the second half)
+    total = 0
+    burn_target = min(chunk, max_steps // 2)
+    while True:
+        n = burn_target - total
+        if n > 0:
+            state = sampler.run_mcmc(state, n, progress=progress, progress_kwargs={"desc": "burn-in"})
+            total += n
+        tau_b = _tau(sampler, discard=total // 2)
+        need = int(math.ceil(burn_factor * tau_b.max()))
+        if total >= need or total >= max_steps // 2:
+            break
+        burn_target = min(max(need + need // 10, total + chunk // 2), max_steps // 2)
+    burn_in = total
+    sampler.reset()
+
+    # ---- production: until n > tau_factor * max(tau) or max_steps
+    n_prod = 0
+    step = chunk
+    while True:
+        step = min(step, max_steps - total)
+        if step <= 0:
+            break
+        state = sampler.run_mcmc(state, step, progress=progress, progress_kwargs={"desc": "production"})
+        n_prod += step
+        total += step
+        tau = _tau(sampler)
+        need = tau_factor * tau.max()
+        if n_prod > need:
+            break
+        step = max(int(math.ceil(1.1 * need)) - n_prod, chunk // 2)
+    tau = _tau(sampler)
+    converged = bool(n_prod > tau_factor * tau.max())
+    if thin is None:
+        thin = max(1, int(tau.min() // 2))
+    thin = min(thin, max(1, n_prod // 2))
+    zchain = sampler.get_chain(thin=thin)
+    chain = lp.to_natural(zchain)
+    logp = sampler.get_log_prob(thin=thin)
+    flat = chain.reshape(-1, d)
+    q = np.percentile(flat, [5, 16, 50, 84, 95], axis=0)
+    return PosteriorResult(
+        family=model, loss=loss, noise=noise, prior=lp.prior, labels=lp.labels, chain=chain, log_prob=logp,
+        median=q[2], mean=flat.mean(axis=0), std=flat.std(axis=0, ddof=1),
+        ci90=np.stack([q[0], q[4]], axis=1), ci68=np.stack([q[1], q[3]], axis=1),
+        acceptance_fraction=np.asarray(sampler.acceptance_fraction, float), autocorr_time=tau,
+        n_effective=n_walkers * n_prod / tau, burn_in=burn_in, n_steps=n_prod, thin=int(thin),
+        n_walkers=n_walkers, tau_factor=float(tau_factor), converged=converged,
+        wall_time=time.perf_counter() - t0, noise_floor=float(lp.noise_floor),
+        fixed={k: np.asarray(v, float) for k, v in (fixed or {}).items()}, tied=tuple(tied),
+    )

@@ -1,0 +1,235 @@
+r"""Model choice: fit several families, compare information criteria and hold-out error.
+
+:func:`compare_models` splits the table at random into a fit part and a hold-out part
+(``holdout`` is the hold-out fraction), fits every family to the fit part with :func:`~matfit.fitting.fit`
+(two starting points, see :func:`robust_fit`) and reports, per family:
+
+* ``p``: free parameters; ``n``: residuals used by the fit (valid rows x channels);
+* ``aic = n log(RSS/n) + 2p`` and ``bic = n log(RSS/n) + p log n``: the Gaussian log-likelihood with
+  the variance profiled out, from the fit's residual sum of squares (the fit's own loss and weights,
+  so with ``sigma`` in the table they are chi-square residuals);
+* ``holdout_rmse``: ``sqrt(mean r^2)`` of the same residuals (same loss, same weights) on the
+  hold-out rows; ``holdout_rmse_raw``: plain RMSE of the BRDF values there, in 1/sr.
+
+Recommendation: among the families whose hold-out RMSE is within ``tol`` (default 2 %, relative)
+of the best one, the simplest, i.e. the one with the fewest free parameters (ties: the order of
+``models``). The hold-out error decides, not the AIC/BIC, because it does not depend on the
+Gaussian error model being right.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import ParameterError
+from ..table import Table
+from .fit import FitError, fit, initial_guess
+from .losses import residuals
+from .params import Parametrization, get_family
+
+__all__ = ["compare_models", "ModelComparison", "recommend", "safe_initial_guess", "robust_fit", "DEFAULT_TOL"]
+
+#: Generic mid-range starting values, tried next to the data-driven guess by :func:`robust_fit`.
+GENERIC_INIT = {"albedo": 0.5, "alpha": 0.2, "alpha_base": 0.2, "alpha_coat": 0.1, "k": 3.0, "eta_base": 1.0,
+                "k_base": 3.0, "eta_coat": 1.5}
+
+#: Relative hold-out tolerance of the recommendation.
+DEFAULT_TOL = 0.02
+
+
+@dataclass
+class ModelComparison:
+    """The outcome of :func:`compare_models`.
+
+    ``rows``: one dict per family (``model``, ``p``, ``n``, ``rss``, ``aic``, ``bic``, ``holdout_rmse``,
+    ``holdout_rmse_raw``, ``objective``, ``converged``, ``seconds``, ``error`` when the fit failed);
+    ``recommended``: the family chosen; ``best``: the family with the lowest hold-out RMSE;
+    ``results``: the FitResult per family (fitted to the fit part).
+    """
+
+    rows: list
+    recommended: str | None
+    best: str | None
+    tol: float
+    n_fit: int
+    n_holdout: int
+    results: dict = field(default_factory=dict, repr=False)
+
+    def summary(self) -> str:
+        lines = [f"model comparison: {self.n_fit} fit rows, {self.n_holdout} hold-out rows, tolerance {self.tol:.0%}",
+                 f"  {'model':20s} {'p':>3s} {'AIC':>11s} {'BIC':>11s} {'hold-out RMSE':>13s} {'raw (1/sr)':>11s}"]
+        for r in self.rows:
+            if r.get("error"):
+                lines.append(f"  {r['model']:20s} failed: {r['error']}")
+                continue
+            mark = "  <- recommended" if r["model"] == self.recommended else ""
+            lines.append(f"  {r['model']:20s} {r['p']:3d} {r['aic']:11.4g} {r['bic']:11.4g} {r['holdout_rmse']:13.5g} "
+                         f"{r['holdout_rmse_raw']:11.4g}{mark}")
+        lines.append(f"  recommended: {self.recommended} (best hold-out: {self.best})")
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict:
+        return {"rows": self.rows, "recommended": self.recommended, "best": self.best, "tol": self.tol,
+                "n_fit": self.n_fit, "n_holdout": self.n_holdout}
+
+
+def recommend(rows, tol=DEFAULT_TOL):
+    """``(recommended, best)`` family names from comparison rows (see the module docstring).
+
+    Examples
+    --------
+    >>> rows = [{"model": "plastic", "p": 5, "holdout_rmse": 1.00},
+    ...         {"model": "lambert", "p": 3, "holdout_rmse": 1.01},
+    ...         {"model": "conductor", "p": 7, "holdout_rmse": 3.0}]
+    >>> recommend(rows)
+    ('lambert', 'plastic')
+    >>> recommend(rows, tol=0.001)
+    ('plastic', 'plastic')
+    """
+    ok = [(i, r) for i, r in enumerate(rows) if not r.get("error") and math.isfinite(r.get("holdout_rmse", math.nan))]
+    if not ok:
+        return None, None
+    best = min(ok, key=lambda ir: (ir[1]["holdout_rmse"], ir[0]))[1]
+    limit = best["holdout_rmse"] * (1.0 + tol)
+    within = [(i, r) for i, r in ok if r["holdout_rmse"] <= limit]
+    rec = min(within, key=lambda ir: (ir[1]["p"], ir[0]))[1]
+    return rec["model"], best["model"]
+
+
+def safe_initial_guess(table, model, fixed=None, tied=(), margin=0.02):
+    """:func:`~matfit.fitting.initial_guess` with every value moved inside its bounds.
+
+    The data-driven guess can land outside a parameter's range (e.g. a conductor's ``k`` guess reaches
+    14 while its bound is 12); the bijection then saturates and every start ends non-finite. Bounded
+    parameters are clipped to ``[lo + margin (hi - lo), hi - margin (hi - lo)]``, half-bounded ones
+    to ``lo + margin``. Pass the result as ``fit(..., init=...)``.
+    """
+    par = Parametrization(model, table.n_channels, fixed, tied)
+    g = initial_guess(table, par)
+    out = {}
+    for p in par.free:
+        v = np.asarray(g[p.name], float)
+        if np.isinf(p.upper):
+            v = np.maximum(v, p.lower + margin)
+        else:
+            span = p.upper - p.lower
+            v = np.clip(v, p.lower + margin * span, p.upper - margin * span)
+        out[p.name] = v
+    return out
+
+
+def robust_fit(table, model, init=None, fixed=None, tied=(), **fit_kwargs):
+    """:func:`~matfit.fitting.fit` from two starting points; the result of lower objective.
+
+    The first start is ``init`` or :func:`safe_initial_guess`; the second is a generic mid-range
+    point (:data:`GENERIC_INIT`; ``eta`` 1.0 for conductors, 1.5 otherwise). Both runs share one
+    compiled solver, so the second costs only its iterations. This guards against the data-driven
+    guess landing in a poor basin (e.g. a conductor's ``k`` at its bound when a sparse table makes
+    the peak look wide).
+    """
+    par = Parametrization(model, table.n_channels, fixed, tied)
+    first = dict(init) if init is not None else safe_initial_guess(table, model, fixed, tied)
+    eta = 1.0 if model.startswith("conductor") else 1.5
+    second = {p.name: GENERIC_INIT.get(p.name, eta if p.name == "eta" else first.get(p.name)) for p in par.free}
+    best, err = None, None
+    for start in (first, second):
+        try:
+            r = fit(table, model=model, init=start, fixed=fixed, tied=tied, **fit_kwargs)
+        except FitError as e:
+            err = e
+            continue
+        if best is None or r.objective < best.objective:
+            best = r
+    if best is None:
+        raise err
+    return best
+
+
+def _holdout_errors(result, table, loss):
+    import jax.numpy as jnp
+
+    valid = table.valid
+    w = table.effective_weight()
+    pred = np.asarray(result.model.eval(jnp.asarray(table.wo), jnp.asarray(table.wi)), dtype=np.float64)
+    r = np.asarray(residuals(jnp.asarray(pred), jnp.asarray(table.values), jnp.asarray(w), jnp.asarray(table.wi[:, 2]),
+                             loss=loss))
+    used = w > 0
+    n = int(used.sum())
+    rmse = float(np.sqrt(np.sum(np.where(used, r, 0) ** 2) / max(n, 1)))
+    raw = float(np.sqrt(np.mean((pred[valid] - table.values[valid]) ** 2))) if valid.any() else math.nan
+    return rmse, raw
+
+
+def compare_models(table, models=("lambert", "conductor", "plastic"), holdout=0.2, seed=0, tol=DEFAULT_TOL,
+                   **fit_kwargs) -> ModelComparison:
+    """Fit each family in ``models`` on a random ``1 - holdout`` of the rows and compare them.
+
+    Parameters
+    ----------
+    table : matfit.Table
+    models : sequence of family names (see :data:`matfit.fitting.FAMILIES`)
+    holdout : float in (0, 1)
+        Fraction of the rows held out (``Table.split(1 - holdout, seed)``).
+    seed : int
+        Seed of the split.
+    tol : float
+        Relative hold-out tolerance of the recommendation (default 0.02).
+    **fit_kwargs
+        Passed to :func:`matfit.fitting.fit` (``method``, ``loss``, ``starts``, ``fixed`` ...; a
+        ``fixed`` that names a parameter a family lacks is applied to the families that have it).
+
+    Returns
+    -------
+    ModelComparison
+    """
+    if not isinstance(table, Table):
+        raise ParameterError(f"compare_models: table must be a matfit.Table, got {type(table).__name__}")
+    if isinstance(models, str):
+        models = tuple(m.strip() for m in models.split(",") if m.strip())
+    models = tuple(models)
+    if not models:
+        raise ParameterError("compare_models: no models given")
+    for m in models:
+        get_family(m)
+    if len(set(models)) != len(models):
+        raise ParameterError(f"compare_models: models repeat: {list(models)}")
+    if not (isinstance(holdout, (int, float)) and 0.0 < float(holdout) < 1.0):
+        raise ParameterError(f"compare_models: holdout must be a fraction in (0, 1), got {holdout!r}")
+    if not (isinstance(tol, (int, float)) and tol >= 0):
+        raise ParameterError(f"compare_models: tol must be >= 0, got {tol!r}")
+    fit_part, hold_part = table.split(1.0 - float(holdout), seed=seed)
+    if fit_part.n_valid == 0 or hold_part.n_valid == 0:
+        raise FitError(f"compare_models: the split leaves {fit_part.n_valid} valid fit rows and {hold_part.n_valid} "
+                       f"valid hold-out rows; both must be > 0")
+    loss = fit_kwargs.get("loss", "l2")
+    fixed_all = dict(fit_kwargs.pop("fixed", None) or {})
+    tied_all = tuple(fit_kwargs.pop("tied", ()) or ())
+    rows, results = [], {}
+    for m in models:
+        names = {p.name for p in get_family(m).params}
+        fixed = {k: v for k, v in fixed_all.items() if k in names}
+        tied = tuple(t for t in tied_all if t in names)
+        t0 = time.perf_counter()
+        kw = dict(fit_kwargs)
+        if kw.get("init") is not None:
+            kw["init"] = {k: v for k, v in kw["init"].items() if k in names} or None
+        try:
+            res = robust_fit(fit_part, m, fixed=fixed, tied=tied, **kw)
+        except FitError as e:
+            rows.append({"model": m, "error": str(e), "seconds": time.perf_counter() - t0})
+            continue
+        n, p = int(res.n_residuals), len(res.labels)
+        rss = max(float(res.rss), 1e-300)
+        ll = n * math.log(rss / n)
+        h_rmse, h_raw = _holdout_errors(res, hold_part, loss)
+        rows.append({"model": m, "p": p, "n": n, "rss": float(res.rss), "aic": ll + 2 * p, "bic": ll + p * math.log(n),
+                     "holdout_rmse": h_rmse, "holdout_rmse_raw": h_raw, "objective": float(res.objective),
+                     "converged": bool(res.converged), "seconds": time.perf_counter() - t0})
+        results[m] = res
+    rec, best = recommend(rows, tol)
+    return ModelComparison(rows=rows, recommended=rec, best=best, tol=float(tol), n_fit=len(fit_part),
+                           n_holdout=len(hold_part), results=results)
