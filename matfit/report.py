@@ -320,7 +320,7 @@ def _plot_residuals(path, th, td, res, res_label, logv):
     for ax, val, cmap, lab, kw in ((axes[0], res, "RdBu_r", res_label, dict(vmin=-lim, vmax=lim)),
                                    (axes[1], logv, "viridis", "log10 measured f (channel mean)", {})):
         if big:
-            bins = [np.linspace(0, 90, 46), np.linspace(0, 90, 46)]
+            bins = [np.linspace(0, 90, 25), np.linspace(0, 90, 25)]  # 3.75 deg: no gaps on coarse grids
             s, _, _ = np.histogram2d(th, td, bins=bins, weights=val)
             c, _, _ = np.histogram2d(th, td, bins=bins)
             with np.errstate(invalid="ignore"):

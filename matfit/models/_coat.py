@@ -7,8 +7,8 @@ or a :class:`RoughDielectric`. Its energy transmittance for light arriving at
 .. math:: T(\mu) = \int_{[0,1]^2} (1 - F(\omega_o\cdot m(u)))\,w_t(u)\,\eta_p^2\,du
 
 the transmission lobe's sample weights integrated in primary-sample space by a tensor
-Gauss-Legendre rule (``order`` points per axis), tabulated at ``nodes`` cosines and interpolated
-linearly. The internal diffuse reflectance of the coat is
+Gauss-Legendre rule (``order`` points per axis), tabulated at ``nodes`` cosines (crowded towards grazing as :math:`\mu_j = (j/(n-1))^2`, the
+first evaluated at :math:`\mu = 10^{-3}`) and interpolated linearly. The internal diffuse reflectance of the coat is
 :math:`R_{int} = 1 - \bar T/\eta^2` with :math:`\bar T = 2\int_0^1 T(\mu)\mu\,d\mu`, which is
 the exact hemispherical average of the internal Fresnel reflectance for a smooth coat and keeps
 reciprocity and energy balance for a rough one.
@@ -61,7 +61,8 @@ def _gl01(n, dtype):
 def coat_transmittance_table(coat, order=COAT_ORDER, nodes=COAT_NODES, dtype=None):
     """Tabulated ``(mu, T(mu))`` of a rough coat (see module doc)."""
     dtype = jnp.result_type(coat.eta, float) if dtype is None else dtype
-    mu = jnp.linspace(0.0, 1.0, nodes, dtype=dtype)
+    # Nodes crowd towards grazing incidence (mu = s^2), where T changes fastest.
+    mu = jnp.linspace(0.0, 1.0, nodes, dtype=dtype) ** 2
     mu_e = jnp.maximum(mu, 1e-3)
     wo = jnp.stack([jnp.sqrt(1 - mu_e**2), jnp.zeros_like(mu_e), mu_e], -1)
     x, w = _gl01(order, dtype)
@@ -79,7 +80,6 @@ def coat_transmittance_table(coat, order=COAT_ORDER, nodes=COAT_NODES, dtype=Non
     one_minus_F = 1 - fresnel_dielectric(dot(wob, m), coat.eta)
     e = jnp.where(trans, weight[..., 0] * one_minus_F * coat.eta**2, 0)
     T = jnp.sum(e * wts, axis=-1)
-    T = T.at[0].set(0.0)  # grazing: nothing enters
     return mu, T
 
 

@@ -8,7 +8,8 @@ of either model keeps its discrete probability scaled by its selection probabili
 
 Parameters
 ----------
-a, b : matfit models with the same or broadcastable channel counts.
+a, b : matfit models with the same or broadcastable channel counts; each either free of Dirac
+    lobes or a pure delta model (a smooth-coated Plastic/Layered is rejected).
 weight : w in [0, 1], differentiable (scalar or batch-shaped).
 """
 
@@ -42,6 +43,11 @@ class Blend(AbstractBSDF):
         for name, m in (("a", a), ("b", b)):
             if not isinstance(m, AbstractBSDF):
                 raise ParameterError(f"Blend: {name} must be a matfit model, got {type(m).__name__}")
+            if m.has_delta_lobe and not m.is_delta:
+                raise ParameterError(
+                    f"Blend: {name} ({type(m).__name__}) mixes a Dirac lobe with a continuous one, which Blend cannot "
+                    "sample consistently; blend rough-coated models, or pure delta models (SmoothConductor, SmoothDielectric)"
+                )
         check_range("Blend", "weight", weight, 0.0, 1.0)
         self.a = a
         self.b = b
@@ -50,6 +56,10 @@ class Blend(AbstractBSDF):
     @property
     def channels(self):
         return max(self.a.channels, self.b.channels)
+
+    @property
+    def has_delta_lobe(self):
+        return self.a.has_delta_lobe or self.b.has_delta_lobe
 
     def eval(self, wo, wi):
         check_directions("Blend.eval", wo=wo, wi=wi)

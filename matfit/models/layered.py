@@ -108,7 +108,9 @@ class Layered(AbstractBSDF):
 
     def eval(self, wo, wi):
         check_directions("Layered.eval", wo=wo, wi=wi)
-        table = self._table()
+        return self._eval_t(wo, wi, self._table())
+
+    def _eval_t(self, wo, wi, table):
         wo_b, ok_o = self._inner(wo)
         wi_b, ok_i = self._inner(wi)
         ok = ok_o & ok_i
@@ -123,7 +125,9 @@ class Layered(AbstractBSDF):
 
     def pdf(self, wo, wi):
         check_directions("Layered.pdf", wo=wo, wi=wi)
-        table = self._table()
+        return self._pdf_t(wo, wi, self._table())
+
+    def _pdf_t(self, wo, wi, table):
         pc = self._p_coat(wo, table)
         wo_b, ok_o = self._inner(wo)
         wi_b, ok_i = self._inner(wi)
@@ -157,8 +161,8 @@ class Layered(AbstractBSDF):
         else:
             wi_c = self.coat.reflection_sample(wo, u[..., 1:3])
         wi = jnp.where(choose_c[..., None], wi_c, wi_out)
-        pdf = self.pdf(wo, wi)
-        weight = safe_div(self.eval(wo, wi) * jnp.abs(wi[..., 2])[..., None], pdf[..., None])
+        pdf = self._pdf_t(wo, wi, table)
+        weight = safe_div(self._eval_t(wo, wi, table) * jnp.abs(wi[..., 2])[..., None], pdf[..., None])
         ok = (pdf > 0) & jnp.where(choose_c, True, ok_o & ok_out)
         if is_smooth(self.coat):
             F = fresnel_dielectric(wo[..., 2], self.coat.eta)

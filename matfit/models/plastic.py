@@ -99,8 +99,10 @@ class Plastic(AbstractBSDF):
 
     def eval(self, wo, wi):
         check_directions("Plastic.eval", wo=wo, wi=wi)
+        return self._eval_t(wo, wi, self._table())
+
+    def _eval_t(self, wo, wi, table):
         ok = (wo[..., 2] > COS_EPS) & (wi[..., 2] > COS_EPS)
-        table = self._table()
         f = coat_reflection(self.coat, wo, wi)[..., None] + self._diffuse(wo, wi, table)
         return jnp.where(ok[..., None], f, 0)
 
@@ -111,7 +113,9 @@ class Plastic(AbstractBSDF):
 
     def pdf(self, wo, wi):
         check_directions("Plastic.pdf", wo=wo, wi=wi)
-        table = self._table()
+        return self._pdf_t(wo, wi, self._table())
+
+    def _pdf_t(self, wo, wi, table):
         pc = self._p_coat(wo, table)
         p_d = Lambert(self.reflectance).pdf(wo, wi)
         p_c = 0.0 if is_smooth(self.coat) else self.coat.reflection_pdf(wo, wi)
@@ -136,8 +140,8 @@ class Plastic(AbstractBSDF):
         else:
             wi_c = self.coat.reflection_sample(wo, u[..., 1:3])
         wi = jnp.where(choose_c[..., None], wi_c, wi_d)
-        pdf = self.pdf(wo, wi)
-        weight = safe_div(self.eval(wo, wi) * jnp.abs(wi[..., 2])[..., None], pdf[..., None])
+        pdf = self._pdf_t(wo, wi, table)
+        weight = safe_div(self._eval_t(wo, wi, table) * jnp.abs(wi[..., 2])[..., None], pdf[..., None])
         ok = (pdf > 0) & (wi[..., 2] > COS_EPS)
         if is_smooth(self.coat):
             # The delta lobe: weight F / P(coat), pdf = the discrete probability P(coat).
