@@ -15,9 +15,10 @@ $(STAMP): $(PY) pyproject.toml
 
 install: $(STAMP)
 
+# The models tour (lobes.png, albedo.csv), then the main job on data_synth/scenes/demo.toml:
+# synthesize demo_out/demo_synth.npz, fit, sample the posterior, report (demo_out/report/), compare.
 demo: $(STAMP)
 	$(PY) -m matfit demo --out demo_out
-	$(PY) -m matfit synth data_synth/scenes/demo.toml -o demo_out/demo_synth.npz
 	$(PY) -m matfit info demo_out/demo_synth.npz
 
 test: $(STAMP)

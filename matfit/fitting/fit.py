@@ -152,7 +152,7 @@ def initial_guess(table: Table, par: Parametrization):
     peak = v[ipk] - floor
     co = max(abs(wo[ipk, 2]), 0.05)
     # At the peak (theta_h ~ 0): f ~ F / (4 pi alpha^2 cos^2), so F ~ f 4 pi alpha^2 cos^2.
-    r0 = np.clip(peak * 4 * np.pi * alpha**2 * co**2, 0.02, 0.98)
+    r0 = np.clip(peak * 4 * np.pi * alpha**2 * co**2, 0.02, 0.9)
     k = 2 * np.sqrt(r0 / (1 - r0))
     guess = {
         "albedo": np.clip(np.pi * floor, 0.01, 0.95),
@@ -160,7 +160,13 @@ def initial_guess(table: Table, par: Parametrization):
         "eta": 1.5 if par.family.name in ("plastic", "dielectric") else np.ones_like(r0),
         "k": k, "eta_base": np.ones_like(r0), "k_base": k, "eta_coat": 1.5,
     }
-    return {p.name: guess[p.name] for p in par.free}
+    # Every guess strictly inside its bounds (the bijection saturates at a bound).
+    out = {}
+    for p in par.free:
+        lo, hi = p.lower, p.upper
+        span = (hi - lo) if np.isfinite(hi) else 1.0
+        out[p.name] = np.clip(guess[p.name], lo + 1e-3 * span, hi - 1e-3 * span if np.isfinite(hi) else np.inf)
+    return out
 
 
 def _starts(table, par, n, seed):
