@@ -31,7 +31,7 @@ from .fit import FitError, fit, initial_guess
 from .losses import residuals
 from .params import Parametrization, get_family
 
-__all__ = ["compare_models", "ModelComparison", "recommend", "safe_initial_guess", "robust_fit", "DEFAULT_TOL"]
+__all__ = ["compare_models", "ModelComparison", "recommend", "robust_fit", "DEFAULT_TOL"]
 
 #: Generic mid-range starting values, tried next to the data-driven guess by :func:`robust_fit`.
 GENERIC_INIT = {"albedo": 0.5, "alpha": 0.2, "alpha_base": 0.2, "alpha_coat": 0.1, "k": 3.0, "eta_base": 1.0,
@@ -100,39 +100,17 @@ def recommend(rows, tol=DEFAULT_TOL):
     return rec["model"], best["model"]
 
 
-def safe_initial_guess(table, model, fixed=None, tied=(), margin=0.02):
-    """:func:`~matfit.fitting.initial_guess` with every value moved inside its bounds.
-
-    The data-driven guess can land outside a parameter's range (e.g. a conductor's ``k`` guess reaches
-    14 while its bound is 12); the bijection then saturates and every start ends non-finite. Bounded
-    parameters are clipped to ``[lo + margin (hi - lo), hi - margin (hi - lo)]``, half-bounded ones
-    to ``lo + margin``. Pass the result as ``fit(..., init=...)``.
-    """
-    par = Parametrization(model, table.n_channels, fixed, tied)
-    g = initial_guess(table, par)
-    out = {}
-    for p in par.free:
-        v = np.asarray(g[p.name], float)
-        if np.isinf(p.upper):
-            v = np.maximum(v, p.lower + margin)
-        else:
-            span = p.upper - p.lower
-            v = np.clip(v, p.lower + margin * span, p.upper - margin * span)
-        out[p.name] = v
-    return out
-
-
 def robust_fit(table, model, init=None, fixed=None, tied=(), **fit_kwargs):
     """:func:`~matfit.fitting.fit` from two starting points; the result of lower objective.
 
-    The first start is ``init`` or :func:`safe_initial_guess`; the second is a generic mid-range
+    The first start is ``init`` or :func:`~matfit.fitting.initial_guess`; the second is a generic mid-range
     point (:data:`GENERIC_INIT`; ``eta`` 1.0 for conductors, 1.5 otherwise). Both runs share one
     compiled solver, so the second costs only its iterations. This guards against the data-driven
     guess landing in a poor basin (e.g. a conductor's ``k`` at its bound when a sparse table makes
     the peak look wide).
     """
     par = Parametrization(model, table.n_channels, fixed, tied)
-    first = dict(init) if init is not None else safe_initial_guess(table, model, fixed, tied)
+    first = dict(init) if init is not None else initial_guess(table, par)
     eta = 1.0 if model.startswith("conductor") else 1.5
     second = {p.name: GENERIC_INIT.get(p.name, eta if p.name == "eta" else first.get(p.name)) for p in par.free}
     best, err = None, None
