@@ -31,7 +31,7 @@ internal_reflection : bool, see above.
 References
 ----------
 - A. Weidlich, A. Wilkie, "Arbitrarily Layered Micro-Facet Surfaces", GRAPHITE 2007.
-- J. Jakob, "Mitsuba 0.6 documentation: plastic / roughplastic", 2014 (internal scattering term).
+- W. Jakob, "Mitsuba 0.6 documentation: plastic / roughplastic", 2014 (internal scattering term).
 - Article in ``shared/seed`` (Fresnel-weighted sum of a coat lobe and a diffuse lobe).
 """
 
