@@ -699,7 +699,7 @@ def test_gradients_finite_edges(smooth, dt):
 # 5. float32 / float64 values: finite, right dtype, edge directions
 # ------------------------------------------------------------------------------------------------
 # float32 on a subset of the structures (each float32 structure is a new compilation).
-F32_MODELS = ["plastic-smooth-noir", "layered-smooth-lambert-abs", "coated-conductor-rough",
+F32_MODELS = ["plastic-smooth-noir", "layered-smooth-lambert-abs", "coated-conductor-rough", "blend-roughplastic-conductor"]
 DTYPE_CASES = [(n, np.float64) for n in MODEL_IDS] + [(n, np.float32) for n in F32_MODELS]
 
 
