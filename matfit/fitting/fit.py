@@ -12,7 +12,6 @@ import functools
 import time
 from dataclasses import dataclass, field
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np

@@ -38,15 +38,15 @@ import jax.numpy as jnp
 
 from .._math import COS_EPS, refract, safe_div
 from ..errors import ParameterError
-from ..fresnel import fresnel_dielectric
 from ._base import AbstractBSDF
-from ._coat import coat_reflection, coat_transmittance, coat_transmittance_table, is_smooth, make_coat
+from ._coated import AbstractCoatedBSDF
+from ._coat import coat_reflection, coat_transmittance, is_smooth, make_coat
 from ._params import as_channels, as_param, check_directions, check_range, check_u
 from .rough_dielectric import RoughDielectric
 from .smooth_dielectric import SmoothDielectric
 
 
-class Layered(AbstractBSDF):
+class Layered(AbstractCoatedBSDF):
     """Any dielectric coat over any base model (stackable).
 
     Examples
@@ -58,7 +58,6 @@ class Layered(AbstractBSDF):
     (3,)
     """
 
-    coat: AbstractBSDF
     base: AbstractBSDF
     thickness: jnp.ndarray
     sigma_a: jnp.ndarray = eqx.field(converter=as_channels)
@@ -81,13 +80,6 @@ class Layered(AbstractBSDF):
     @property
     def channels(self):
         return max(self.base.channels, self.sigma_a.shape[-1])
-
-    @property
-    def has_delta_lobe(self):
-        return is_smooth(self.coat)
-
-    def _table(self):
-        return None if is_smooth(self.coat) else coat_transmittance_table(self.coat)
 
     def _inner(self, w):
         """Direction inside the layer (pointing up) for an outside direction ``w``."""
@@ -137,41 +129,19 @@ class Layered(AbstractBSDF):
         both = (wo[..., 2] > COS_EPS) & (wi[..., 2] > COS_EPS)
         return jnp.where(both, pc * p_c + (1 - pc) * p_b, 0)
 
-    def delta_albedo(self, wo):
-        if not is_smooth(self.coat):
-            return super().delta_albedo(wo)
-        ok = wo[..., 2] > COS_EPS
-        F = jnp.where(ok, fresnel_dielectric(wo[..., 2], self.coat.eta), 0)
-        return jnp.broadcast_to(F[..., None], wo.shape[:-1] + (self.channels,))
-
-    def sample(self, wo, u):
-        check_directions("Layered.sample", wo=wo)
-        check_u("Layered.sample", u, 3)
-        table = self._table()
-        pc = self._p_coat(wo, table)
-        choose_c = u[..., 0] < pc
+    def _sample_under(self, wo, u, pc):
         # Re-use u0 for the base's own lobe choice, rescaled to [0, 1).
         u0_b = jnp.clip(safe_div(u[..., 0] - pc, 1 - pc), 0, 1 - 1e-7)
         wo_b, ok_o = self._inner(wo)
         u_b = jnp.concatenate([u0_b[..., None], u[..., 1:3]], axis=-1)
         wi_b, _, _ = self.base.sample(jnp.broadcast_to(wo_b, u_b.shape), u_b)
         wi_out, ok_out = self._outer(wi_b)
-        if is_smooth(self.coat):
-            wi_c = wo * jnp.array([-1, -1, 1], wo.dtype)
-        else:
-            wi_c = self.coat.reflection_sample(wo, u[..., 1:3])
-        wi = jnp.where(choose_c[..., None], wi_c, wi_out)
-        pdf = self._pdf_t(wo, wi, table)
-        weight = safe_div(self._eval_t(wo, wi, table) * jnp.abs(wi[..., 2])[..., None], pdf[..., None])
-        ok = (pdf > 0) & jnp.where(choose_c, True, ok_o & ok_out)
-        if is_smooth(self.coat):
-            F = fresnel_dielectric(wo[..., 2], self.coat.eta)
-            w_delta = jnp.broadcast_to(safe_div(F, pc)[..., None], weight.shape)
-            ok_c = (wo[..., 2] > COS_EPS) & (pc > 0)
-            weight = jnp.where(choose_c[..., None], w_delta, weight)
-            pdf = jnp.where(choose_c, pc, pdf)
-            ok = jnp.where(choose_c, ok_c, ok)
-        return wi, jnp.where(ok[..., None], weight, 0), jnp.where(ok, pdf, 0)
+        return wi_out, ok_o & ok_out
+
+    def sample(self, wo, u):
+        check_directions("Layered.sample", wo=wo)
+        check_u("Layered.sample", u, 3)
+        return self._sample_coated(wo, u)
 
 
 def CoatedConductor(alpha_base, eta_base, k_base, alpha_coat=0.0, eta_coat=1.5, thickness=0.0, sigma_a=0.0,

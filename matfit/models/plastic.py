@@ -41,14 +41,13 @@ import equinox as eqx
 import jax.numpy as jnp
 
 from .._math import COS_EPS, cosine_hemisphere, safe_div
-from ..fresnel import fresnel_dielectric
-from ._base import AbstractBSDF
-from ._coat import coat_internal_reflectance, coat_reflection, coat_transmittance, coat_transmittance_table, is_smooth, make_coat
+from ._coated import AbstractCoatedBSDF
+from ._coat import coat_internal_reflectance, coat_reflection, coat_transmittance, is_smooth, make_coat
 from ._params import as_channels, check_directions, check_range, check_u
 from .lambert import Lambert
 
 
-class Plastic(AbstractBSDF):
+class Plastic(AbstractCoatedBSDF):
     """Diffuse base under a dielectric clear coat (plastic, varnished wood).
 
     Examples
@@ -62,7 +61,6 @@ class Plastic(AbstractBSDF):
     """
 
     reflectance: jnp.ndarray = eqx.field(converter=as_channels)
-    coat: AbstractBSDF
     internal_reflection: bool = eqx.field(static=True)
 
     def __init__(self, albedo, alpha=0.0, eta=1.5, distribution="ggx", internal_reflection=True, masking="separable"):
@@ -80,13 +78,6 @@ class Plastic(AbstractBSDF):
     @property
     def eta(self):
         return self.coat.eta
-
-    @property
-    def has_delta_lobe(self):
-        return is_smooth(self.coat)
-
-    def _table(self):
-        return None if is_smooth(self.coat) else coat_transmittance_table(self.coat)
 
     def _diffuse(self, wo, wi, table):
         To = coat_transmittance(self.coat, wo[..., 2], table)
@@ -121,34 +112,10 @@ class Plastic(AbstractBSDF):
         p_c = 0.0 if is_smooth(self.coat) else self.coat.reflection_pdf(wo, wi)
         return pc * p_c + (1 - pc) * p_d
 
-    def delta_albedo(self, wo):
-        if not is_smooth(self.coat):
-            return super().delta_albedo(wo)
-        ok = wo[..., 2] > COS_EPS
-        F = jnp.where(ok, fresnel_dielectric(wo[..., 2], self.coat.eta), 0)
-        return jnp.broadcast_to(F[..., None], wo.shape[:-1] + (self.channels,))
+    def _sample_under(self, wo, u, pc):
+        return cosine_hemisphere(u[..., 1], u[..., 2]), True
 
     def sample(self, wo, u):
         check_directions("Plastic.sample", wo=wo)
         check_u("Plastic.sample", u, 3)
-        table = self._table()
-        pc = self._p_coat(wo, table)
-        choose_c = u[..., 0] < pc
-        wi_d = cosine_hemisphere(u[..., 1], u[..., 2])
-        if is_smooth(self.coat):
-            wi_c = wo * jnp.array([-1, -1, 1], wo.dtype)
-        else:
-            wi_c = self.coat.reflection_sample(wo, u[..., 1:3])
-        wi = jnp.where(choose_c[..., None], wi_c, wi_d)
-        pdf = self._pdf_t(wo, wi, table)
-        weight = safe_div(self._eval_t(wo, wi, table) * jnp.abs(wi[..., 2])[..., None], pdf[..., None])
-        ok = (pdf > 0) & (wi[..., 2] > COS_EPS)
-        if is_smooth(self.coat):
-            # The delta lobe: weight F / P(coat), pdf = the discrete probability P(coat).
-            F = fresnel_dielectric(wo[..., 2], self.coat.eta)
-            w_delta = jnp.broadcast_to(safe_div(F, pc)[..., None], weight.shape)
-            ok_c = (wo[..., 2] > COS_EPS) & (pc > 0)
-            weight = jnp.where(choose_c[..., None], w_delta, weight)
-            pdf = jnp.where(choose_c, pc, pdf)
-            ok = jnp.where(choose_c, ok_c, ok)
-        return wi, jnp.where(ok[..., None], weight, 0), jnp.where(ok, pdf, 0)
+        return self._sample_coated(wo, u)
