@@ -8,13 +8,18 @@ import equinox as eqx
 import jax.numpy as jnp
 import jax.scipy.special as jsp
 
-from .._math import COS_EPS, dot, flip_up, safe_div, sq
+from .._math import COS_EPS, dot, flip_up, normalize, safe_div, sq
 
 #: Roughness values below this are clamped to it inside the distributions, so that D stays
 #: representable in float32 (D(n) = 1/(pi alpha^2) ~ 3e7). Below ALPHA_MIN use the smooth models.
 ALPHA_MIN = 1e-4
 
 MASKING_FORMS = ("separable", "height_correlated")
+
+
+def normal_from_slopes(sx, sy):
+    """Unit microfacet normal of slopes (sx, sy): normalize(-sx, -sy, 1)."""
+    return normalize(jnp.stack([-sx, -sy, jnp.ones_like(sx)], axis=-1))
 
 
 def _as_alpha(a):
@@ -79,6 +84,14 @@ class AbstractDistribution(eqx.Module):
         ax, ay = self._alphas()
         vz2 = jnp.maximum(sq(v[..., 2]), COS_EPS * COS_EPS)
         return (sq(v[..., 0] * ax) + sq(v[..., 1] * ay)) / vz2
+
+    def _normal_from_radius(self, r, u_phi):
+        """Microfacet normal for the alpha = 1 slope radius ``r`` at azimuth ``2 pi u_phi``,
+        stretched by (alpha_x, alpha_y): the slope distributions of GGX and Beckmann are
+        stretch-invariant, so D cos sampling is the alpha = 1 radius law plus this map."""
+        ax, ay = self._alphas()
+        phi = 2 * jnp.pi * u_phi
+        return normal_from_slopes(ax * r * jnp.cos(phi), ay * r * jnp.sin(phi))
 
     def G1(self, v, m):
         r"""Smith masking :math:`\chi^+((v\cdot m)/(v\cdot n)) / (1 + \Lambda(v))`."""

@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import jax.scipy.special as jsp
 
 from .._math import COS_EPS, flip_up, normalize, safe_div, safe_sqrt, sq
-from ._base import AbstractDistribution
+from ._base import AbstractDistribution, normal_from_slopes
 
 _INV_SQRT_PI = 0.5641895835477563
 
@@ -92,12 +92,8 @@ class Beckmann(AbstractDistribution):
         return beckmann_lambda(self._a2tan2(v))
 
     def sample_dcos(self, u):
-        ax, ay = self._alphas()
-        r = safe_sqrt(-jnp.log(jnp.maximum(1 - u[..., 0], 1e-30)))
-        phi = 2 * jnp.pi * u[..., 1]
-        sx = ax * r * jnp.cos(phi)
-        sy = ay * r * jnp.sin(phi)
-        return normalize(jnp.stack([-sx, -sy, jnp.ones_like(sx)], axis=-1))
+        r = safe_sqrt(-jnp.log(jnp.maximum(1 - u[..., 0], 1e-30)))  # slope radius law for alpha = 1
+        return self._normal_from_radius(r, u[..., 1])
 
     def sample_visible(self, wo, u):
         """Visible normals: stretch, sample the alpha = 1 visible slopes, rotate, unstretch."""
@@ -112,6 +108,4 @@ class Beckmann(AbstractDistribution):
         u2 = jnp.clip(u[..., 1], 1e-6, 1 - 1e-6)
         x = _sample_slope_x(ws[..., 2], u1)
         y = jsp.erfinv(2 * u2 - 1)
-        sx = (cos_p * x - sin_p * y) * ax
-        sy = (sin_p * x + cos_p * y) * ay
-        return normalize(jnp.stack([-sx, -sy, jnp.ones_like(sx)], axis=-1))
+        return normal_from_slopes((cos_p * x - sin_p * y) * ax, (sin_p * x + cos_p * y) * ay)

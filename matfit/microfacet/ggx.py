@@ -50,13 +50,9 @@ class GGX(AbstractDistribution):
         return t / (2 * (1 + jnp.sqrt(1 + t)))
 
     def sample_dcos(self, u):
-        ax, ay = self._alphas()
         u1 = u[..., 0]
-        phi = 2 * jnp.pi * u[..., 1]
-        r = safe_sqrt(u1 / jnp.maximum(1 - u1, 1e-12))  # slope radius for alpha = 1
-        sx = ax * r * jnp.cos(phi)
-        sy = ay * r * jnp.sin(phi)
-        return normalize(jnp.stack([-sx, -sy, jnp.ones_like(sx)], axis=-1))
+        r = safe_sqrt(u1 / jnp.maximum(1 - u1, 1e-12))  # slope radius law for alpha = 1
+        return self._normal_from_radius(r, u[..., 1])
 
     def sample_visible(self, wo, u):
         """Visible normals by the spherical-cap method of Dupuy & Benyoub (2023)."""
