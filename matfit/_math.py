@@ -58,9 +58,10 @@ def refract(wi, n, eta):
     eta = jnp.where(flip, 1 / eta, eta)
     cos_i = jnp.abs(cos_i)
     n = jnp.where(flip[..., None], -n, n)
-    sin2_t = jnp.maximum(0, 1 - cos_i * cos_i) / (eta * eta)
-    ok = sin2_t < 1
-    cos_t = safe_sqrt(1 - sin2_t)
+    # cos^2 theta_t = (eta^2 - 1 + cos_i^2) / eta^2: no cancellation near grazing or at eta ~ 1.
+    cos2_t = (eta * eta - 1 + cos_i * cos_i) / (eta * eta)
+    ok = cos2_t > 0
+    cos_t = safe_sqrt(cos2_t)
     wt = -wi / eta[..., None] + (cos_i / eta - cos_t)[..., None] * n
     return wt, ok
 

@@ -58,12 +58,17 @@ def fresnel_dielectric(cos_theta_i, eta):
     inside = c < 0
     eta = jnp.where(inside, 1 / eta, eta)
     c = jnp.abs(c)
-    sin2_t = (1 - c * c) / (eta * eta)
-    tir = sin2_t >= 1
-    cos_t = safe_sqrt(1 - sin2_t)
-    r_parl = (eta * c - cos_t) / (eta * c + cos_t)
-    r_perp = (c - eta * cos_t) / (c + eta * cos_t)
-    return jnp.where(tir, 1.0, 0.5 * (sq(r_parl) + sq(r_perp)))
+    # cos^2 theta_t = 1 - (1 - c^2)/eta^2, written as (eta^2 - 1 + c^2)/eta^2 so that it keeps
+    # its digits near grazing incidence and at eta ~ 1 (float32: 1 - c^2 rounds to 1 at c = 1e-4).
+    cos2_t = (eta * eta - 1 + c * c) / (eta * eta)
+    tir = cos2_t <= 0
+    grazing = c <= 0
+    cos_t = safe_sqrt(cos2_t)
+    den_parl = jnp.where(grazing, 1.0, eta * c + cos_t)
+    den_perp = jnp.where(grazing, 1.0, c + eta * cos_t)
+    r_parl = (eta * c - cos_t) / den_parl
+    r_perp = (c - eta * cos_t) / den_perp
+    return jnp.where(tir | grazing, 1.0, 0.5 * (sq(r_parl) + sq(r_perp)))
 
 
 def fresnel_conductor(cos_theta_i, eta, k):
@@ -111,7 +116,8 @@ def fresnel_conductor(cos_theta_i, eta, k):
     t3 = cos2 * a2b2 + sq(sin2)
     t4 = t2 * sin2
     rp = rs * safe_div(t3 - t4, t3 + t4, 1.0)
-    return 0.5 * (rs + rp)
+    # Rounding can leave R a few ulps below 0 near eta = 1, k = 0 (float32): clamp to [0, 1].
+    return jnp.clip(0.5 * (rs + rp), 0.0, 1.0)
 
 
 def fresnel_schlick(cos_theta_i, f0):
