@@ -121,6 +121,16 @@ class AbstractBSDF(eqx.Module):
         return e + self.delta_albedo(wo)
 
 
+def dielectric_energy_factor(wo, wi, eta):
+    """``etap^2`` for a transmitted pair (1 for reflection): undoes the radiance BTDF's scaling.
+
+    ``etap`` is ``eta`` when ``wo`` is outside and ``1/eta`` when it is inside.
+    """
+    refl = wo[..., 2] * wi[..., 2] > 0
+    etap = jnp.where(wo[..., 2] > 0, eta, 1 / eta)
+    return jnp.where(refl, 1.0, etap * etap) * jnp.ones_like(wo[..., 2])
+
+
 def cos_theta(w):
     return w[..., 2]
 

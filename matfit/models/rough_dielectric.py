@@ -47,6 +47,7 @@ import jax.numpy as jnp
 
 from .._math import COS_EPS, dot, flip_up, normalize, reflect, refract, safe_div, sq
 from ..fresnel import fresnel_dielectric
+from ._base import dielectric_energy_factor
 from ._microfacet import AbstractMicrofacetBSDF
 from ._params import as_param, check_directions, check_range, check_u
 
@@ -95,9 +96,7 @@ class RoughDielectric(AbstractMicrofacetBSDF):
         return m, wim, wom, co, ci, refl, etap, ok
 
     def energy_factor(self, wo, wi):
-        refl = wo[..., 2] * wi[..., 2] > 0
-        etap = jnp.where(wo[..., 2] > 0, self.eta, 1 / self.eta)
-        return jnp.where(refl, 1.0, sq(etap)) * jnp.ones_like(wo[..., 2])
+        return dielectric_energy_factor(wo, wi, self.eta)
 
     def eval(self, wo, wi):
         check_directions("RoughDielectric.eval", wo=wo, wi=wi)

@@ -21,7 +21,7 @@ import jax.numpy as jnp
 
 from .._math import COS_EPS, refract, sq
 from ..fresnel import fresnel_dielectric
-from ._base import AbstractBSDF
+from ._base import AbstractBSDF, dielectric_energy_factor
 from ._params import as_param, check_directions, check_range, check_u
 
 
@@ -58,9 +58,7 @@ class SmoothDielectric(AbstractBSDF):
         return jnp.zeros(jnp.broadcast_shapes(wo.shape, wi.shape)[:-1], jnp.result_type(wo))
 
     def energy_factor(self, wo, wi):
-        refl = wo[..., 2] * wi[..., 2] > 0
-        etap = jnp.where(wo[..., 2] > 0, self.eta, 1 / self.eta)
-        return jnp.where(refl, 1.0, sq(etap)) * jnp.ones_like(wo[..., 2])
+        return dielectric_energy_factor(wo, wi, self.eta)
 
     def delta_albedo(self, wo):
         ok = jnp.abs(wo[..., 2]) > COS_EPS
