@@ -76,6 +76,17 @@ def summarize(times: list[float]) -> dict[str, Any]:
     return out
 
 
+def _repeat(fn, args, kwargs, repeat, number, res):
+    """``repeat`` samples of the mean time of ``number`` blocked calls; returns (times, last result)."""
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        for _ in range(number):
+            res = block(fn(*args, **kwargs))
+        times.append((time.perf_counter() - t0) / number)
+    return times, res
+
+
 def time_call(fn: Callable, *args, repeat: int = 5, warmup: int = 1, number: int = 1, **kwargs) -> dict:
     """Time ``fn(*args, **kwargs)`` ``repeat`` times after ``warmup`` untimed calls.
 
@@ -85,12 +96,7 @@ def time_call(fn: Callable, *args, repeat: int = 5, warmup: int = 1, number: int
     res = None
     for _ in range(warmup):
         res = block(fn(*args, **kwargs))
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        for _ in range(number):
-            res = block(fn(*args, **kwargs))
-        times.append((time.perf_counter() - t0) / number)
+    times, res = _repeat(fn, args, kwargs, repeat, number, res)
     out = summarize(times)
     out["compile_s"] = None
     out["result"] = res
@@ -114,18 +120,37 @@ def time_jax(fn: Callable, *args, repeat: int = 5, number: int = 1, lower: bool 
         compile_s = time.perf_counter() - t0
     res = block(call(*args, **kwargs))
     first = time.perf_counter() - t0
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        for _ in range(number):
-            res = block(call(*args, **kwargs))
-        times.append((time.perf_counter() - t0) / number)
+    times, res = _repeat(call, args, kwargs, repeat, number, res)
     out = summarize(times)
     if compile_s is None:
         compile_s = max(first - out["median_s"], 0.0)
     out["compile_s"] = compile_s
     out["first_call_s"] = first
     out["result"] = res
+    return out
+
+
+def interleaved(fns: dict[str, Callable[[], Any]], repeat: int = 5, warmup: int = 1) -> dict[str, dict]:
+    """Time several zero-argument callables with their repeats interleaved (a, b, c, a, b, c, ...).
+
+    On a machine shared with other jobs, interleaving exposes every contender to the same load, so
+    ratios measured in one run stay meaningful even when absolute times drift. Returns
+    ``{name: summarize(times)}`` (each with ``compile_s`` = None and the last ``result``)."""
+    results = {}
+    for name, fn in fns.items():
+        for _ in range(warmup):
+            results[name] = block(fn())
+    times: dict[str, list[float]] = {name: [] for name in fns}
+    for _ in range(repeat):
+        for name, fn in fns.items():
+            t0 = time.perf_counter()
+            results[name] = block(fn())
+            times[name].append(time.perf_counter() - t0)
+    out = {}
+    for name in fns:
+        out[name] = summarize(times[name])
+        out[name]["compile_s"] = None
+        out[name]["result"] = results.get(name)
     return out
 
 
