@@ -100,11 +100,14 @@ def _float_array(name, a, ndim_shape_desc):
     return np.array(arr, dtype=np.float64, copy=True)
 
 
-def _check_finite(name, a):
+def _check_finite(name, a, hint="", rows=None):
+    """Raise naming the count and first index of non-finite entries (``rows`` maps a's rows to
+    the table's row numbers)."""
     bad = ~np.isfinite(a)
     if bad.any():
         idx = np.argwhere(bad)[0]
-        raise data_error(name, "finite values", f"{int(bad.sum())} non-finite (first at index {tuple(int(i) for i in idx)}: {a[tuple(idx)]})")
+        shown = (int(rows[idx[0]]),) + tuple(int(i) for i in idx[1:]) if rows is not None else tuple(int(i) for i in idx)
+        raise data_error(name, "finite values", f"{int(bad.sum())} non-finite (first at index {shown}: {a[tuple(idx)]}){hint}")
 
 
 def _check_dirs(name, a, n):
@@ -165,7 +168,6 @@ class Table:
         if values.ndim != 2 or values.shape[1] != c:
             raise data_error("values", f"shape (N, {c}) for channels {channels!r}", f"shape {values.shape}")
         n = values.shape[0]
-        _check_finite("values", values)
         wo = _float_array("wo", self.wo, f"shape ({n}, 3)")
         _check_dirs("wo", wo, n)
         wi = _float_array("wi", self.wi, f"shape ({n}, 3)")
@@ -184,6 +186,11 @@ class Table:
                         or not np.isin(v, (0, 1)).all():
                     raise data_error("valid", "booleans (or 0/1)", f"dtype {v.dtype}")
             valid = np.array(v, dtype=bool, copy=True)
+        # Values on invalid rows are never used: non-finite ones there (a NaN marking a missing
+        # cell) are stored as 0; on valid rows they are an error that says how to mask them.
+        _check_finite("values", values[valid], hint="; mark such rows invalid with valid=... (they are then ignored)",
+                      rows=np.flatnonzero(valid))
+        values = np.where(valid[:, None] | np.isfinite(values), values, 0.0)
         if self.sigma is not None:
             sigma = _per_channel("sigma", self.sigma, n, c)
             if (sigma < 0).any():

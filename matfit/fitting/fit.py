@@ -18,6 +18,7 @@ import numpy as np
 
 from ..errors import MatfitError, ParameterError
 from ..table import Table
+from .diagnostics import diagnose
 from .losses import check_loss, residuals
 from .params import Parametrization, get_family
 
@@ -44,6 +45,9 @@ class FitResult:
     steps : solver iterations of the best start;  converged : whether it met its tolerances
     wall_time : seconds for the whole call;  start_objectives : objective reached by each start
     model : the fitted matfit model
+    warnings : diagnostics of the optimum (list of str; see :mod:`matfit.fitting.diagnostics`):
+        not converged, not identifiable (those standard errors are ``inf``), at a bound,
+        outliers, poor fit, multiple optima.  ``ok`` is ``converged and not warnings``.
     """
 
     family: str
@@ -65,12 +69,19 @@ class FitResult:
     start_objectives: np.ndarray
     model: object = field(repr=False)
     z: np.ndarray = field(repr=False, default=None)
+    warnings: list = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        """Converged and no diagnostic warning (see :mod:`matfit.fitting.diagnostics`)."""
+        return bool(self.converged) and not self.warnings
 
     def summary(self) -> str:
         lines = [f"{self.family} fit ({self.method}, {self.loss}): objective {self.objective:.6g}, "
                  f"{self.steps} steps, converged={self.converged}, {self.wall_time:.2f} s"]
         for lab, v, s in zip(self.labels, self.values, self.stderr):
             lines.append(f"  {lab:14s} = {v:.6g} +- {s:.2g}")
+        lines += [f"  WARNING {w}" for w in self.warnings]
         return "\n".join(lines)
 
 
@@ -120,7 +131,7 @@ def _solver(family, channels, fixed_items, tied, method, loss, robust, scale, ma
         return z, obj, steps, ok
 
     def jac(z, arrays):
-        return jax.jacfwd(fn)(z, arrays)
+        return fn(z, arrays), jax.jacfwd(fn)(z, arrays)
 
     return par, jax.jit(run), jax.jit(jac)
 
@@ -252,7 +263,7 @@ def fit(table, model="plastic", method="lm", loss="l2", robust=None, robust_scal
     zb = z[best]
     # Uncertainty: Gauss-Newton covariance in the natural parameters (chain rule through the
     # element-wise transform), scaled by the residual variance unless the table carries sigma.
-    J = np.asarray(jac(zb, arrays))
+    r_best, J = (np.asarray(x) for x in jac(zb, arrays))
     dtheta = np.asarray(jax.jacfwd(par.theta_vector)(zb)).diagonal()
     Jt = J / np.where(dtheta != 0, dtheta, np.inf)
     rss = float(2 * obj[best])
@@ -260,16 +271,26 @@ def fit(table, model="plastic", method="lm", loss="l2", robust=None, robust_scal
     s2 = 1.0 if (table.sigma is not None and loss == "l2" and robust is None) else rss / max(dof, 1)
     cov = s2 * np.linalg.pinv(Jt.T @ Jt)
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
+    values = np.asarray(par.theta_vector(zb))
+    lower, upper = par.lower_upper()
+    sw = np.sqrt(np.asarray(arrays[3], float))
+    data_scale = float(np.sqrt(np.mean((sw * np.asarray(arrays[2], float)) ** 2)))
+    notes, unident = diagnose(
+        labels=par.labels, values=values, stderr=se, lower=lower, upper=upper, Jt=Jt, residuals=r_best,
+        converged=bool(np.asarray(ok)[best]), steps=int(np.asarray(steps)[best]), max_steps=int(max_steps),
+        known_sigma=table.sigma is not None and loss == "l2" and robust is None, dof=n_res - par.size,
+        data_scale=data_scale, start_values=np.asarray(par.theta_vector(z)), start_objectives=obj, best=best)
+    se = np.where(np.isin(par.labels, unident), np.inf, se)
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(se, se)
     theta = par.full(par.theta(zb))
     return FitResult(
         family=model, method=method, loss=loss,
         params={k: np.asarray(v) for k, v in theta.items()},
-        labels=par.labels, values=np.asarray(par.theta_vector(zb)), stderr=se, cov=cov, corr=corr,
+        labels=par.labels, values=values, stderr=se, cov=cov, corr=corr,
         objective=float(obj[best]), rss=rss, n_residuals=n_res, dof=dof, steps=int(np.asarray(steps)[best]),
         converged=bool(np.asarray(ok)[best]), wall_time=time.perf_counter() - t0, start_objectives=obj,
-        model=par.model(zb), z=np.asarray(zb),
+        model=par.model(zb), z=np.asarray(zb), warnings=notes,
     )
 
 

@@ -1,0 +1,139 @@
+r"""Diagnostics of a finished fit: what the numbers alone do not say.
+
+A least-squares solver can stop "successfully" at an answer the table does not support. After
+every fit, :func:`diagnose` inspects the optimum and returns plain-language warnings, stored in
+``FitResult.warnings`` (and ``FitResult.ok`` is ``converged and not warnings``):
+
+=====================  =======================================================================
+not converged          the solver hit ``max_steps`` or failed its tolerances.
+not identifiable       the Gauss-Newton matrix :math:`J^T J` (natural parameters, each scaled
+                       to its bound width) has a relative eigenvalue below
+                       :data:`IDENT_RCOND`: the table cannot tell some parameter combination
+                       apart (e.g. every row at one angle). The parameters that dominate the
+                       weak directions are named, and their standard errors are set to ``inf``.
+at a bound             a parameter ended within :data:`BOUND_TOL` (relative to its range) of
+                       a bound: the best fit lies at or beyond the family's range.
+outliers               residuals beyond :data:`OUTLIER_Z` robust standard deviations
+                       (1.4826 MAD) on more rows than Gaussian noise explains: try
+                       ``robust="huber"``/``"cauchy"`` or mask the rows.
+poor fit               with the table's own sigma: reduced :math:`\chi^2` above
+                       :data:`CHI2_MAX`.
+multiple optima        another start reached an objective within 0.1 % of the best at
+                       parameters more than 5 standard errors away.
+=====================  =======================================================================
+
+References
+----------
+- P. C. Hansen, "Rank-Deficient and Discrete Ill-Posed Problems", SIAM, 1998 (numerical rank
+  from the singular values of the Jacobian).
+- P. J. Rousseeuw, C. Croux, "Alternatives to the Median Absolute Deviation", JASA 88, 1993
+  (1.4826 MAD as a robust standard deviation).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: relative eigenvalue of the scaled J^T J below which a direction counts as unidentified
+IDENT_RCOND = 1e-10
+#: distance to a bound, relative to the parameter's range (or to 1 for unbounded ranges)
+BOUND_TOL = 1e-4
+#: robust z-score beyond which a residual is an outlier
+OUTLIER_Z = 6.0
+#: reduced chi-square above which a fit with known sigma is called poor
+CHI2_MAX = 3.0
+
+
+def identifiability(Jt, labels, lower, upper):
+    """Unidentified parameters from the Jacobian in natural parameters.
+
+    Parameters
+    ----------
+    Jt : (n, p) Jacobian of the residuals with respect to the natural parameters.
+    labels : p names;  lower, upper : (p,) bounds (``inf`` upper: unbounded above).
+
+    Returns
+    -------
+    list of str
+        Labels of the parameters that dominate the directions of relative eigenvalue below
+        :data:`IDENT_RCOND` (empty when every direction is determined).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> J = np.array([[1.0, 1.0], [2.0, 2.0], [3.0, 3.0]])   # only a + b is seen
+    >>> identifiability(J, ["a", "b"], np.zeros(2), np.ones(2))
+    ['a', 'b']
+    """
+    span = np.where(np.isfinite(upper), upper - lower, 1.0)
+    A = np.asarray(Jt, float) * span[None, :]
+    if not np.all(np.isfinite(A)):
+        return list(labels)
+    s, vt = np.linalg.svd(A, full_matrices=False)[1:]
+    s2 = s**2
+    top = s2.max() if s2.size else 0.0
+    if top <= 0:
+        return list(labels)
+    weak = s2 < IDENT_RCOND * top
+    if not weak.any():
+        return []
+    load = np.sum(vt[weak] ** 2, axis=0)
+    return [lab for lab, w in zip(labels, load) if w > 0.1]
+
+
+def diagnose(*, labels, values, stderr, lower, upper, Jt, residuals, converged, steps, max_steps, known_sigma,
+             dof, data_scale=0.0, start_values=None, start_objectives=None, best=0):
+    """Warnings (list of str) about a fit's optimum; see the module docstring for each check.
+
+    ``data_scale`` is the root mean square of the weighted data: residual spreads below
+    ``1e-7 * data_scale`` count as an exact fit (no outlier test on rounding noise).
+    Returns ``(warnings, unidentified)``; ``unidentified`` lists the labels whose standard errors
+    should be reported as ``inf``.
+    """
+    out = []
+    if not converged:
+        why = f"it stopped at max_steps={max_steps}" if steps >= max_steps else "it did not meet its tolerances"
+        out.append(f"not converged: the solver did not converge ({why}); raise max_steps or use more starts")
+    unident = identifiability(Jt, labels, lower, upper)
+    if unident:
+        out.append(f"not identifiable: the table does not constrain {', '.join(unident)} (rank-deficient Jacobian); "
+                   "add rows at other angles, fix or tie parameters, or use a simpler family")
+    span = np.where(np.isfinite(upper), upper - lower, 1.0)
+    at_lo = (values - lower) <= BOUND_TOL * span
+    at_hi = np.isfinite(upper) & ((upper - values) <= BOUND_TOL * span)
+    for lab, v, lo, hi, a, b in zip(labels, values, lower, upper, at_lo, at_hi):
+        if a or b:
+            out.append(f"at a bound: {lab} = {v:.6g} is at its {'lower' if a else 'upper'} bound "
+                       f"{lo if a else hi:g}; the best fit lies at or outside the family's range")
+    r = np.asarray(residuals, float)
+    r = r[r != 0]
+    if r.size >= 8:
+        mad = 1.4826 * np.median(np.abs(r - np.median(r)))
+        if mad > 1e-7 * data_scale and mad > 0:
+            z = np.abs(r - np.median(r)) / mad
+            n_out = int(np.count_nonzero(z > OUTLIER_Z))
+            # Gaussian noise gives P(|z| > 6) ~ 2e-9: a handful is already significant
+            if n_out > max(2, 1e-4 * r.size):
+                out.append(f"outliers: {n_out} of {r.size} residuals are more than {OUTLIER_Z:g} robust standard "
+                           f"deviations from the fit (largest {z.max():.3g}); use robust='huber' or 'cauchy', or mask them")
+    if known_sigma and dof > 0:
+        chi2 = float(np.sum(np.asarray(residuals, float) ** 2)) / dof
+        if chi2 > CHI2_MAX:
+            out.append(f"poor fit: reduced chi-square {chi2:.4g} > {CHI2_MAX:g} with the table's own sigma: the model "
+                       "does not explain the data (wrong family, outliers, or a local optimum)")
+    if start_values is not None and start_objectives is not None and len(start_objectives) > 1:
+        ob = np.asarray(start_objectives, float)
+        sv = np.asarray(start_values, float)
+        best_obj = ob[best]
+        se = np.where(np.isfinite(stderr) & (stderr > 0), stderr, np.inf)
+        for j in range(len(ob)):
+            if j == best or not np.isfinite(ob[j]):
+                continue
+            close = abs(ob[j] - best_obj) <= 1e-3 * max(abs(best_obj), 1e-300)
+            far = np.any(np.abs(sv[j] - values) > 5 * se)
+            if close and far:
+                out.append("multiple optima: another start reached the same objective at different parameters "
+                           f"({', '.join(f'{l}={v:.4g}' for l, v in zip(labels, sv[j]))}); the table does not "
+                           "single out one answer")
+                break
+    return out, unident
