@@ -38,13 +38,96 @@ import numpy as np
 
 from .io._halfdiff import dirs_to_half_diff
 
-__all__ = ["write_report", "truth_from_table", "colour_difference", "in_plane_slices"]
+__all__ = ["write_report", "truth_from_table", "colour_difference", "in_plane_slices", "loss_history"]
 
 #: Above this many valid rows, residual maps and colour differences use a random subset.
 MAX_ROWS = 100_000
 _SWEEP = np.linspace(-89.0, 89.0, 357)  # signed theta_o (degrees) of the in-plane sweeps
 _FAMILY_OF = {"Lambert": "lambert", "RoughDielectric": "dielectric", "Plastic": "plastic",
               "CoatedConductor": "car_paint"}
+
+
+# ------------------------------------------------------------------------------------ loss history
+def loss_history(table, family, loss="l2", method="lm", starts=4, seed=0, max_steps=256, rtol=1e-8, atol=1e-10,
+                 robust=None, robust_scale=1.0, fixed=None, tied=(), init=None, dtype=None):
+    """Per-iteration objective of every start of a :func:`matfit.fitting.fit` call.
+
+    ``fit`` solves all starts in one compiled, vectorized call and keeps only where each start
+    ended. This re-runs the same optimistix solver (same family, loss, starting points, tolerances
+    and step limit as ``fit`` with these arguments) one start at a time with a ``verbose``
+    callback that records, at every solver step, the objective ``0.5 * sum(r**2)`` at the last
+    accepted iterate (so each curve is non-increasing; a rejected Levenberg-Marquardt trial step
+    repeats the previous value). The last value of each curve is that start's final objective.
+
+    Parameters
+    ----------
+    table : matfit.Table
+    family, loss, method, starts, seed, max_steps, rtol, atol, robust, robust_scale, fixed, tied, init, dtype :
+        as for :func:`matfit.fitting.fit` (``method`` one of ``"lm"``, ``"gn"``, ``"dogleg"``).
+
+    Returns
+    -------
+    list of numpy arrays
+        One array per start: the objective after each solver step (entry 0: at the starting point).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit import Table
+    >>> rng = np.random.default_rng(0)
+    >>> wo = np.tile([0.0, 0.0, 1.0], (40, 1)); wi = rng.normal(size=(40, 3)); wi[:, 2] = abs(wi[:, 2])
+    >>> wi /= np.linalg.norm(wi, axis=1, keepdims=True)
+    >>> t = Table(wo=wo, wi=wi, values=np.full((40, 1), 0.3 / np.pi), channels="mono")
+    >>> h = loss_history(t, "lambert", starts=2)  # start 0 (data-driven) is exact here; start 1 is perturbed
+    >>> bool(h[1][0] > 1e-4 and h[1][-1] < 1e-8 and np.all(np.diff(h[1]) <= 0))
+    True
+    """
+    import jax
+    import optimistix as optx
+
+    from .errors import ParameterError
+    from .fitting.fit import _residual_fn, _starts, _table_arrays, initial_guess
+    from .fitting.losses import check_loss
+    from .fitting.params import Parametrization
+
+    solvers = {"lm": optx.LevenbergMarquardt, "gn": optx.GaussNewton, "dogleg": optx.Dogleg}
+    if method not in solvers:
+        raise ParameterError(f"loss_history: method must be one of {sorted(solvers)} (solvers that take a "
+                             f"verbose callback), got {method!r}")
+    check_loss(loss, robust)
+    par = Parametrization(family, table.n_channels, {k: np.atleast_1d(np.asarray(v, float)).tolist()
+                                                     for k, v in (fixed or {}).items()}, tuple(tied))
+    fn = _residual_fn(par, loss, robust, float(robust_scale))
+    arrays = _table_arrays(table, dtype)
+    z0s = _starts(table, par, starts, seed)
+    if init is not None:  # as fit() does: init replaces the data-driven guess of start 0
+        g = initial_guess(table, par)
+        g.update(init)
+        z0s = z0s.at[0].set(par.z_from_theta(g))
+    z0s = z0s.astype(arrays[0].dtype)
+    record = []
+
+    def verbose(**kw):
+        # kw values are (label, traced value); step 0 has no accepted iterate yet.
+        jax.debug.callback(lambda n, v: record.append((int(n), float(v))), kw["num_steps"][1],
+                           kw["loss_last_accepted_step"][1])
+
+    solver = solvers[method](rtol=float(rtol), atol=float(atol), verbose=verbose)
+
+    @jax.jit
+    def solve(z0, args):
+        sol = optx.least_squares(fn, solver, z0, args=args, max_steps=int(max_steps), throw=False)
+        r = fn(sol.value, args)
+        return 0.5 * jax.numpy.sum(r * r)
+
+    out = []
+    for z0 in z0s:
+        record.clear()
+        final = float(solve(z0, arrays))
+        jax.effects_barrier()
+        vals = [v for n, v in sorted(record) if n > 0]
+        out.append(np.asarray(vals + [final], float))
+    return out
 
 
 # ------------------------------------------------------------------------------------ truth
@@ -347,8 +430,11 @@ def _plot_loss(path, result, history):
     if history is not None and len(history):
         h = history
         if isinstance(h[0], (list, tuple, np.ndarray)):
+            so = np.asarray(result.start_objectives, float)
+            best = int(np.nanargmin(np.where(np.isfinite(so), so, np.inf))) if so.size == len(h) else -1
             for i, hh in enumerate(h):
-                ax.semilogy(np.arange(len(hh)), np.asarray(hh, float), label=f"start {i}")
+                ax.semilogy(np.arange(len(hh)), np.asarray(hh, float), lw=2.0 if i == best else 1.0,
+                            label=f"start {i}" + (" (best)" if i == best else ""))
             ax.legend(fontsize=7)
         else:
             ax.semilogy(np.arange(len(h)), np.asarray(h, float), "-o", ms=2)
@@ -551,6 +637,7 @@ def write_report(result, table, out_dir, posterior=None, truth=None, history=Non
         "params": params, "fixed": fixed, "metrics": metrics, "colour_difference": cd,
         "posterior": {"n_samples": int(post_samples.shape[0]), "summary": post} if post is not None else None,
         "truth_available": t_params is not None or t_model is not None,
+        "loss_history": _history_json(history),
         "files": files,
     }
     files["json"] = "report.json"
@@ -559,6 +646,15 @@ def write_report(result, table, out_dir, posterior=None, truth=None, history=Non
         json.dump(summary, fh, indent=2, allow_nan=True)
     _write_markdown(out / "report.md", summary, table, result, t_params is not None, post is not None, files)
     return summary
+
+
+def _history_json(history):
+    """The loss history as lists (one per start), or None."""
+    if history is None or not len(history):
+        return None
+    if isinstance(history[0], (list, tuple, np.ndarray)):
+        return [np.asarray(h, float).tolist() for h in history]
+    return [np.asarray(history, float).tolist()]
 
 
 def _write_markdown(path, s, table, result, has_truth, has_post, files):
@@ -602,7 +698,16 @@ def _write_markdown(path, s, table, result, has_truth, has_post, files):
           "converted to CIELAB (D65) and compared with CIEDE2000.", ""]
     L += ["## Figures", "", "In-plane lobes (points: measured, lines: fitted" + (", dashed: truth" if s["truth_available"] else "")
           + "):", "", "![lobes](lobes.png)", "", "Residuals over the Rusinkiewicz angles:", "", "![residuals](residuals.png)",
-          "", "Loss:", "", "![loss](loss.png)", ""]
+          "", "Loss:", ""]
+    hist = s.get("loss_history")
+    if hist:
+        hb = min(hist, key=lambda h: h[-1])
+        L += [f"Loss history: objective after each solver iteration, {len(hist)} start(s); the best start went "
+              f"from {_fmt(hb[0], 4)} to {_fmt(hb[-1], 6)} in {len(hb) - 1} iterations (values per iteration in "
+              "`report.json`, `loss_history`).", ""]
+    else:
+        L += ["No per-iteration history was given: the plot shows the objective each start reached.", ""]
+    L += ["![loss](loss.png)", ""]
     if "corner" in files:
         L += ["Posterior:", "", "![corner](corner.png)", ""]
     L += ["Numbers: `report.json`.", ""]
