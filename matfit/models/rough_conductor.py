@@ -30,7 +30,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._math import COS_EPS, dot, normalize, safe_div
+from .._math import COS_EPS, dot, normalize, safe_div, where_up
 from ..fresnel import fresnel_conductor
 from ._microfacet import AbstractMicrofacetBSDF
 from ._params import as_channels, check_directions, check_range, check_u
@@ -68,13 +68,21 @@ class RoughConductor(AbstractMicrofacetBSDF):
 
     def eval(self, wo, wi):
         check_directions("RoughConductor.eval", wo=wo, wi=wi)
+        h = normalize(wo + wi)
+        return self.eval_half(wo, wi, h, dot(wo, h))
+
+    def eval_half(self, wo, wi, h, cos_d):
+        """:meth:`eval` with the half vector ``h = normalize(wo + wi)`` and ``cos_d = wo . h`` given.
+
+        Both depend only on the directions: :mod:`matfit.fast` computes them once for many
+        evaluations. ``wo, wi, h`` may be ``(..., 3)`` arrays or :class:`matfit._math.Vec3`.
+        """
         ok = self._valid(wo, wi)
         d = self.dist()
-        h = normalize(wo + wi)
-        co = jnp.where(ok, wo[..., 2], 1)
-        ci = jnp.where(ok, wi[..., 2], 1)
-        spec = d.D(h) * d.G2(wo, wi, h, self.masking) / (4 * co * ci)
-        F = fresnel_conductor(dot(wo, h)[..., None], self.eta, self.k)
+        # double where: invalid pairs (at or below the horizon) are evaluated at the normal
+        wo, wi, h = where_up(ok, wo), where_up(ok, wi), where_up(ok, h)
+        spec = d.D(h) * d.G2(wo, wi, h, self.masking) / (4 * wo[..., 2] * wi[..., 2])
+        F = fresnel_conductor(jnp.where(ok, cos_d, 1)[..., None], self.eta, self.k)
         return jnp.where(ok[..., None], spec[..., None] * F, 0)
 
     def pdf(self, wo, wi):

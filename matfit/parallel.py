@@ -1,0 +1,130 @@
+"""Spread a batch of independent evaluations over every device: host CPU cores or GPUs.
+
+XLA's CPU backend runs one fused loop on one core. To use the other cores, JAX must expose them
+as separate *host devices* (set before the backend starts, see :func:`use_host_devices`); a batch
+laid out along its first axis with :func:`batch_sharding` is then split into one contiguous block
+per device, and every jitted elementwise function of it runs on all devices at once (the
+sharding propagates through ``jax.jit``). The same code runs unchanged on one device, on several
+host devices and on GPUs.
+
+Examples
+--------
+>>> import jax.numpy as jnp
+>>> from matfit.parallel import shard_batch
+>>> x, n = shard_batch(jnp.arange(5.0))     # padded to a multiple of the device count
+>>> n, x.shape[0] % len(x.sharding.device_set)
+(5, 0)
+"""
+
+from __future__ import annotations
+
+import os
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+from .errors import MatfitError
+
+#: Name of the mesh axis that the batch is split along.
+BATCH_AXIS = "batch"
+
+__all__ = ["BATCH_AXIS", "use_host_devices", "batch_mesh", "batch_sharding", "shard_batch", "device_count"]
+
+
+def use_host_devices(n: int | None = None) -> int:
+    """Expose ``n`` CPU cores as separate JAX host devices (default: every core).
+
+    Must run before JAX starts its backend (before the first array is created or
+    ``jax.devices()`` is called); importing jax or matfit first is fine. Equivalent to
+    ``XLA_FLAGS=--xla_force_host_platform_device_count=n`` in the environment before Python
+    starts. Has no effect on GPU backends (every GPU already is a device).
+
+    Returns the number requested. Raises :class:`matfit.errors.MatfitError` when the backend has
+    already started with a different count.
+
+    Examples
+    --------
+    >>> from matfit.parallel import use_host_devices
+    >>> import jax
+    >>> use_host_devices(len(jax.devices("cpu")))  # no-op once started with that count
+    1
+    """
+    n = int(n if n is not None else (os.cpu_count() or 1))
+    if n < 1:
+        raise MatfitError(f"use_host_devices: n must be >= 1, got {n}")
+    from jax._src import xla_bridge  # the public API has no "is the backend started" query
+
+    if xla_bridge.backends_are_initialized():
+        have = len(jax.devices("cpu"))
+        if have != n:
+            raise MatfitError(
+                f"use_host_devices({n}): the JAX backend already started with {have} CPU device(s); call it before "
+                f"the first JAX computation, or set XLA_FLAGS=--xla_force_host_platform_device_count={n} before "
+                "starting Python"
+            )
+        return n
+    jax.config.update("jax_num_cpu_devices", n)
+    return n
+
+
+def _devices(devices=None):
+    return list(jax.devices() if devices is None else devices)
+
+
+def device_count(devices=None) -> int:
+    """Number of devices a batch is split over (default: all devices of the default backend)."""
+    return len(_devices(devices))
+
+
+def batch_mesh(devices=None) -> Mesh:
+    """A one-axis mesh (:data:`BATCH_AXIS`) over ``devices`` (default: all of the default backend)."""
+    return Mesh(np.array(_devices(devices)), (BATCH_AXIS,))
+
+
+def batch_sharding(devices=None) -> NamedSharding:
+    """Sharding that splits the first axis of an array into one block per device."""
+    return NamedSharding(batch_mesh(devices), PartitionSpec(BATCH_AXIS))
+
+
+def shard_batch(tree, devices=None, fill=None):
+    """Pad the first axis of every array in ``tree`` to a multiple of the device count and split it.
+
+    Parameters
+    ----------
+    tree : pytree of arrays
+        All leaves share the same first-axis length ``n``.
+    devices : sequence of jax devices, optional
+        Default: every device of the default backend.
+    fill : pytree like ``tree`` of scalars, optional
+        Value of the padding rows per leaf (default: a copy of the last row, so padded rows are
+        valid inputs and never produce NaN).
+
+    Returns
+    -------
+    (sharded_tree, n)
+        The padded, sharded arrays and the original length ``n``: results computed from them
+        are valid in ``[:n]``.
+    """
+    leaves, treedef = jax.tree_util.tree_flatten(tree)
+    if not leaves:
+        raise MatfitError("shard_batch: no arrays given")
+    ns = {int(np.shape(x)[0]) if np.ndim(x) else -1 for x in leaves}
+    if len(ns) != 1 or -1 in ns:
+        raise MatfitError(f"shard_batch: every array needs the same first-axis length, found {sorted(ns)}")
+    n = ns.pop()
+    if n == 0:
+        raise MatfitError("shard_batch: empty batch")
+    nd = device_count(devices)
+    pad = (-n) % nd
+    fills = [None] * len(leaves) if fill is None else jax.tree_util.tree_leaves(fill)
+    out = []
+    sh = batch_sharding(devices)
+    for x, f in zip(leaves, fills):
+        x = jnp.asarray(x) if not isinstance(x, np.ndarray) else x
+        if pad:
+            tail = x[-1:] if f is None else np.full((1,) + x.shape[1:], f, dtype=x.dtype)
+            x = np.concatenate([np.asarray(x), np.repeat(np.asarray(tail), pad, axis=0)])
+        out.append(jax.device_put(x, sh))
+    return jax.tree_util.tree_unflatten(treedef, out), n
