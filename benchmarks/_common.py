@@ -44,7 +44,10 @@ def block(x: Any) -> Any:
         import jax
     except ImportError:  # pragma: no cover - benchmarks always have jax
         return x
-    return jax.block_until_ready(x)
+    for leaf in jax.tree_util.tree_leaves(x):
+        if isinstance(leaf, jax.Array):  # other array types (numpy, drjit) are computed already
+            leaf.block_until_ready()
+    return x
 
 
 # --------------------------------------------------------------------------------------------------
