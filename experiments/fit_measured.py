@@ -1,24 +1,26 @@
-"""Fit matfit families to measured BRDFs with the Löw 2012 E2 loss and compare with published fits.
+"""Fit matfit families to measured BRDFs with the Löw 2012 E2 loss; compare with the published Löw fits.
 
-1. MERL: for N_MERL materials that appear in the Löw et al. 2012 Cook-Torrance E2 fits, write the
-   neural surrogate .binary (shared/tools/merl_surrogate.py) into experiments/results/cache/, load it,
-   subsample the valid cells to a fixed count (same for all materials so that the compiled solver is
-   reused), fit "plastic" and "conductor" with loss="e2" (robust_fit, starts=4) and evaluate the
-   published Löw CT-E2 fit on the same rows.
-2. RGL: fit "plastic" and "conductor" (loss="e2") to each .bsdf in shared/data/rgl/ and write a
-   report (matfit.report.write_report) for the better family.
-3. Write experiments/results/fit_measured.md and .json.
+MERL (neural surrogates of Sztrajman et al. 2021 in the MERL file layout, shared/tools/merl_surrogate.py):
+for each material, a fit table of ``--n-rows`` direction pairs drawn as Löw's metric samples them
+(bbm ``lowLog``, see experiments/_low2012.py): theta_i, phi_i, theta_o uniform, phi_o = 0, weight
+sin(theta_i) (normalized to mean 1), values looked up in the MERL table with MERL's cell rule
+(matfit.io.merl.MerlBRDF.lookup). matfit families are fitted with ``loss="e2"`` on that table, so
+the fit minimizes the same weighted E2 that the published Löw Cook-Torrance E2 fit minimized; the
+published fit (experiments/_low2012.py) is evaluated on the same rows. Secondary reading: E2 over
+``--n-cells`` random valid MERL cells, every cell weighted equally (matfit's plain E2 on a MERL
+table), for both.
 
-E2 metric (same definition everywhere): mean over valid rows and channels of
-``(log(1 + f cos_i) - log(1 + y cos_i))^2`` computed with matfit.fitting.residuals(loss="e2").
+RGL (Dupuy & Jakob 2018 measurements, shared/data/rgl/*.bsdf): every file fitted on its valid rows
+(subsampled to ``--n-rgl`` where it has more; padded with zero-weight rows where it has fewer, so
+all files share one compiled solver), loss ``e2`` with equal row weights.
 
-Published model (Löw 2012 Cook-Torrance, as in bsdfbenchmark/bbm):
-    f = kd/pi + ks D G F / (pi cos_i cos_o),
-    D = exp(-tan^2 th_h / m^2) / (m^2 cos^4 th_h)   (Beckmann without 1/pi),
-    G = min(1, 2 (n.h)(n.o)/(o.h), 2 (n.h)(n.i)/(o.h))   (V-groove),
-    F = Cook-Torrance dielectric Fresnel at c = i.h with index eta.
+Each material / file gets a JSON under experiments/results/fit_measured/ as soon as it is done (a
+rerun skips what is there) and a report (matfit.report.write_report with the per-iteration loss
+history of matfit.report.loss_history) for its best family under reports/<name>/. The summary
+(fit_measured.md, fit_measured.json) is rebuilt from the JSON files at the end (or with --summary).
 
-Usage: python experiments/fit_measured.py [SHARED_DIR] [--n-merl N] [--n-sub 20000] [--materials a,b,...]
+Usage: python experiments/fit_measured.py [SHARED] [--materials a,b] [--skip-rgl] [--skip-merl]
+       [--extra] [--summary]
 """
 from __future__ import annotations
 
@@ -26,287 +28,393 @@ import argparse
 import json
 import os
 import platform
-import re
 import sys
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parent.parent
+HERE = Path(__file__).resolve().parent
+REPO = HERE.parent
 OUT = REPO / "experiments" / "results"
+ITEMS = OUT / "fit_measured"
+REPORTS = OUT / "reports"
+sys.path.insert(0, str(HERE))
 
-MATERIALS = ["red-plastic", "aluminium", "beige-fabric", "gold-metallic-paint", "blue-acrylic", "brass",
-             "pink-felt", "blue-metallic-paint", "yellow-matte-plastic", "chrome-steel", "white-paint",
-             "black-phenolic", "nickel", "green-fabric", "silver-metallic-paint"]
+from _low2012 import e2_cells, e2_weighted, low_cooktorrance, parse_low_fits  # noqa: E402
+
+# A spread: plastics, phenolic/acrylic, metals, metallic paints and paints, fabrics.
+MATERIALS = ["red-plastic", "yellow-matte-plastic", "black-phenolic", "blue-acrylic", "aluminium", "brass",
+             "nickel", "gold-metallic-paint", "blue-metallic-paint", "white-paint", "beige-fabric", "pink-felt"]
 FAMILIES = ("plastic", "conductor")
+EXTRA = {"car_paint": ["gold-metallic-paint", "blue-metallic-paint", "cc_ibiza_sunset_rgb", "cc_iris_purple_gem_rgb"]}
 
 
 def parse_args(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("shared", nargs="?", default=str(REPO.parent / "shared"),
                     help="shared folder (default: ../shared relative to the repo root)")
-    ap.add_argument("--n-merl", type=int, default=int(os.environ.get("N_MERL", 10)))
-    ap.add_argument("--materials", default=None, help="comma-separated MERL names (overrides the default list)")
-    ap.add_argument("--n-sub", type=int, default=20000, help="valid rows per table (fixed: solver reused)")
-    ap.add_argument("--starts", type=int, default=4)
-    ap.add_argument("--max-steps", type=int, default=256)
+    ap.add_argument("--materials", default=None, help="comma-separated MERL names (default: the built-in spread)")
+    ap.add_argument("--n-rows", type=int, default=4000, help="Löw-sampled rows per MERL fit table")
+    ap.add_argument("--n-cells", type=int, default=4000, help="MERL cells for the cell-uniform reading")
+    ap.add_argument("--n-rgl", type=int, default=4000,
+                    help="rows per RGL fit table (= --n-rows: one compiled solver serves both)")
+    ap.add_argument("--starts", type=int, default=3)
+    ap.add_argument("--two-inits", action="store_true", help="also fit from a generic mid-range point")
+    ap.add_argument("--max-steps", type=int, default=80)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--skip-rgl", action="store_true")
+    ap.add_argument("--skip-merl", action="store_true")
+    ap.add_argument("--extra", action="store_true", help="also fit car_paint to the metallic paints / films")
+    ap.add_argument("--summary", action="store_true", help="only rebuild fit_measured.md/.json from the JSON files")
     ap.add_argument("--x32", action="store_true", help="float32 instead of float64")
     return ap.parse_args(argv)
 
 
-# ------------------------------------------------------------------ published Löw CT-E2 fit
-_FIT_RE = re.compile(
-    r"^(?P<name>[\w\-]+)\s*=\s*Aggregate\(\s*Lambertian\(\s*albedo\s*=\s*\[(?P<kd>[^\]]*)\]\s*\)\s*,\s*"
-    r"LowCookTorrance\(\s*albedo\s*=\s*\[(?P<ks>[^\]]*)\]\s*,\s*roughness\s*=\s*(?P<m>[-+\deE.]+)\s*,\s*"
-    r"eta\s*=\s*(?P<eta>[-+\deE.]+)\s*\)\s*\)\s*$")
-
-
-def parse_low_fits(path):
-    """{material: {"kd": [3], "ks": [3], "m": float, "eta": float}} from low_cooktorrance_E2.fit."""
-    out = {}
-    for line in Path(path).read_text().splitlines():
-        line = line.strip()
-        if not line or line.startswith("#"):
-            continue
-        mt = _FIT_RE.match(line)
-        if mt is None:
-            raise ValueError(f"{path}: cannot parse line {line[:80]!r}")
-        out[mt["name"]] = {"kd": [float(x) for x in mt["kd"].split(",")],
-                           "ks": [float(x) for x in mt["ks"].split(",")],
-                           "m": float(mt["m"]), "eta": float(mt["eta"])}
-    return out
-
-
-def low_cooktorrance(p, wo, wi):
-    """Löw 2012 Cook-Torrance BRDF (N, 3) in numpy (see the module docstring)."""
+# ------------------------------------------------------------------ tables
+def low_sampled_table(brdf, n, seed):
+    """``n`` Löw-metric samples of a MERL table (see the module docstring) as a weighted Table."""
     import numpy as np
 
-    kd, ks = np.asarray(p["kd"]), np.asarray(p["ks"])
-    m, eta = p["m"], p["eta"]
-    co, ci = wo[:, 2], wi[:, 2]
-    h = wo + wi
-    h /= np.linalg.norm(h, axis=1, keepdims=True)
-    ch = np.clip(h[:, 2], 1e-12, 1.0)
-    oh = np.clip(np.sum(wo * h, 1), 1e-12, 1.0)
-    tan2 = (1.0 - ch * ch) / (ch * ch)
-    D = np.exp(-tan2 / (m * m)) / (m * m * ch ** 4)
-    G = np.minimum(1.0, np.minimum(2 * ch * co / oh, 2 * ch * ci / oh))
-    c = oh  # i.h == o.h
-    g = np.sqrt(eta * eta - 1.0 + c * c)
-    F = 0.5 * (g - c) ** 2 / (g + c) ** 2 * (1.0 + ((c * (g + c) - 1.0) / (c * (g - c) + 1.0)) ** 2)
-    spec = D * G * F / (np.pi * np.maximum(ci * co, 1e-12))
-    return kd[None, :] / np.pi + ks[None, :] * spec[:, None]
+    from matfit import Table
+
+    rng = np.random.default_rng(seed)
+    ti = rng.uniform(0, np.pi / 2, n)
+    pi_ = rng.uniform(0, np.pi, n)  # isotropy: phi_i in (pi, 2 pi) mirrors (0, pi) about the plane phi_o = 0
+    to = rng.uniform(0, np.pi / 2, n)
+    wi = np.stack([np.sin(ti) * np.cos(pi_), np.sin(ti) * np.sin(pi_), np.cos(ti)], -1)
+    wo = np.stack([np.sin(to), np.zeros(n), np.cos(to)], -1)
+    vals, ok = brdf.lookup(wo, wi)
+    w = np.sin(ti) / np.mean(np.sin(ti))
+    return Table(wo=wo, wi=wi, values=vals, valid=ok, weight=np.repeat(w[:, None], 3, 1), channels="rgb",
+                 provenance={"format": "merl", "source": brdf.source,
+                             "geometry": f"Löw E2 sampling: {n} uniform (theta_i, phi_i, theta_o), phi_o = 0, "
+                                         f"weight sin(theta_i), seed {seed}"})
 
 
-# ------------------------------------------------------------------ helpers
-def e2_metric(pred, table):
-    """Mean squared E2 residual over valid rows and channels, and the sum."""
-    import jax.numpy as jnp
+def padded(table, n, seed):
+    """``n`` rows: a random subset of the valid rows, or all of them plus zero-weight copies."""
     import numpy as np
 
-    from matfit.fitting import residuals
-
-    w = table.effective_weight()
-    r = np.asarray(residuals(jnp.asarray(pred),
-                             jnp.asarray(table.values), jnp.asarray(w), jnp.asarray(table.wi[:, 2]), loss="e2"))
-    used = w > 0
-    s = float(np.sum(np.where(used, r, 0.0) ** 2))
-    return s / max(int(used.sum()), 1), s
-
-
-def model_pred(model, table):
-    import jax.numpy as jnp
-    import numpy as np
-
-    return np.asarray(model.eval(jnp.asarray(table.wo), jnp.asarray(table.wi)), dtype=np.float64)
+    valid = np.flatnonzero(table.valid)
+    if valid.size >= n:
+        return table.subsample(n, seed=seed), n
+    idx = np.concatenate([valid, np.resize(valid, n - valid.size)])
+    t = table.select(idx)
+    ok = t.valid.copy()
+    ok[valid.size:] = False
+    return t.replace(valid=ok), int(valid.size)
 
 
-def params_dict(res):
-    return {k: (v.tolist() if hasattr(v, "tolist") else v) for k, v in res.params.items()}
+# ------------------------------------------------------------------ fitting
+def fit_family(table, fam, args):
+    """fit() from the data-driven guess (``args.starts`` starts); from a generic mid-range point as well
+    (as select.robust_fit does) with ``--two-inits`` or when the first fails. The better result and
+    the init that gave it."""
+    from matfit.fitting import FitError, fit
+    from matfit.fitting.fit import initial_guess
+    from matfit.fitting.params import Parametrization
+    from matfit.fitting.select import GENERIC_INIT
 
-
-def fmt_params(d, nd=4):
-    parts = []
-    for k, v in d.items():
-        if isinstance(v, list):
-            parts.append(f"{k}=[" + ", ".join(f"{x:.{nd}g}" for x in v) + "]")
-        else:
-            parts.append(f"{k}={v:.{nd}g}")
-    return ", ".join(parts)
-
-
-def fit_families(table, starts, seed, max_steps=256):
-    from matfit.fitting import FitError
-    from matfit.fitting.select import robust_fit
-
-    out = {}
-    for fam in FAMILIES:
-        t0 = time.perf_counter()
+    par = Parametrization(fam, table.n_channels)
+    first = initial_guess(table, par)
+    eta = 1.0 if fam.startswith("conductor") else 1.5
+    second = {p.name: GENERIC_INIT.get(p.name, eta if p.name == "eta" else first.get(p.name)) for p in par.free}
+    best, binit, err = None, None, None
+    for init in (None, second):
+        if init is not None and best is not None and not args.two_inits:
+            break
         try:
-            res = robust_fit(table, fam, loss="e2", starts=starts, seed=seed, max_steps=max_steps)
+            r = fit(table, model=fam, loss="e2", init=init, starts=args.starts, seed=args.seed, max_steps=args.max_steps)
         except FitError as e:
-            out[fam] = {"error": str(e), "seconds": time.perf_counter() - t0}
+            err = e
             continue
-        out[fam] = {"result": res, "seconds": time.perf_counter() - t0}
-        print(f"  {fam}: objective {res.objective:.5g}, {res.steps} steps, {out[fam]['seconds']:.1f} s", flush=True)
-    return out
+        if best is None or r.objective < best.objective:
+            best, binit = r, init
+    if best is None:
+        raise err
+    return best, binit
+
+
+def pred_of(model, wo, wi):
+    import jax.numpy as jnp
+    import numpy as np
+
+    return np.asarray(model.eval(jnp.asarray(wo), jnp.asarray(wi)), dtype=np.float64)
+
+
+def jsonable(x):
+    import numpy as np
+
+    if isinstance(x, dict):
+        return {k: jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, (np.floating, np.integer)):
+        return x.item()
+    return x
+
+
+def fam_record(res, init, seconds):
+    return {"objective": res.objective, "converged": bool(res.converged), "steps": int(res.steps), "seconds": seconds,
+            "params": {k: jsonable(v) for k, v in res.params.items()},
+            "labels": list(res.labels), "values": jsonable(res.values), "stderr": jsonable(res.stderr),
+            "start_objectives": jsonable(res.start_objectives), "init": "generic" if init is not None else "data",
+            "warnings": list(getattr(res, "warnings", []) or [])}
+
+
+def report(res, init, fit_table, report_table, name, title, args):
+    """Loss history (re-run with a callback) and write_report; errors are recorded, not fatal."""
+    from matfit.report import loss_history, write_report
+
+    out = REPORTS / name
+    t0 = time.perf_counter()
+    try:
+        hist = loss_history(fit_table, res.family, loss="e2", starts=args.starts, seed=args.seed,
+                            max_steps=args.max_steps, init=init)
+        write_report(res, report_table, out, history=hist, title=title, max_rows=20000)
+        return {"report": str(out.relative_to(REPO)), "report_seconds": time.perf_counter() - t0,
+                "history_final": [float(h[-1]) for h in hist]}
+    except Exception as e:  # noqa: BLE001 - a report bug must not lose the fit
+        return {"report_error": f"{type(e).__name__}: {e}"}
+
+
+def fit_and_report(rec, todo, table, args, metrics, name, title, report_table):
+    """Fit each family in ``todo`` on ``table``, store its record and ``metrics`` (name -> f(model));
+    the family of lowest first metric gets the report (``report_table()`` gives its table)."""
+    rec.setdefault("fits", {})
+    results = {}
+    key = next(iter(metrics))
+    for fam in todo:
+        t1 = time.perf_counter()
+        try:
+            res, init = fit_family(table, fam, args)
+        except Exception as e:  # noqa: BLE001 - one failed family must not stop the run
+            rec["fits"][fam] = {"error": f"{type(e).__name__}: {e}"}
+            continue
+        r = fam_record(res, init, time.perf_counter() - t1)
+        r.update({m: fn(res.model) for m, fn in metrics.items()})
+        rec["fits"][fam] = r
+        results[fam] = (res, init)
+        print(f"[{rec['kind']}] {name} {fam}: " + " ".join(f"{m} {r[m]:.4g}" for m in metrics)
+              + f" ({r['seconds']:.0f} s)", flush=True)
+    ok_f = {f: d for f, d in rec["fits"].items() if key in d}
+    best = min(ok_f, key=lambda f: ok_f[f][key]) if ok_f else None
+    if best is not None and best in results and best != rec.get("best_reported"):
+        res, init = results[best]
+        rec.update(report(res, init, table, report_table(), name, title.format(best=best), args))
+        rec["best_reported"] = best
+    rec["best"] = best
+
+
+# ------------------------------------------------------------------ MERL
+def run_merl(name, low, args, shared):
+    import numpy as np
+
+    import merl_surrogate  # noqa: F401 (path set in main)
+    from matfit.io.merl import read_merl
+
+    jpath = ITEMS / f"merl_{name}.json"
+    rec = json.loads(jpath.read_text()) if jpath.exists() else {"kind": "merl", "material": name}
+    fams = list(FAMILIES) + [f for f, names in EXTRA.items() if args.extra and name in names]
+    todo = [f for f in fams if f not in rec.get("fits", {})]
+    if not todo:
+        return rec
+    t0 = time.perf_counter()
+    cache = OUT / "cache"
+    path = cache / f"{name}.binary"
+    if not path.exists():
+        merl_surrogate.write_merl(name, str(path))
+    brdf = read_merl(path)
+    table = low_sampled_table(brdf, args.n_rows, args.seed)
+    cells = brdf.to_table().subsample(args.n_cells, seed=args.seed)
+    w = table.effective_weight()[:, 0]
+    ok = table.valid
+    p = low[name]
+    if "low_ct" not in rec:
+        lw = {}
+        for lab, dn in (("published", 1.0), ("D_over_pi", 1 / np.pi)):
+            lw[lab] = {"e2_low_sin": e2_weighted(low_cooktorrance(p, table.wo, table.wi, dn)[ok], table.values[ok],
+                                                 table.wi[ok, 2], w[ok]),
+                       "e2_cells": e2_cells(low_cooktorrance(p, cells.wo, cells.wi, dn), cells.values, cells.wi[:, 2],
+                                            cells.valid)}
+        rec["low_ct"] = {"params": p, **lw}
+        rec.update({"n_rows": len(table), "n_rows_valid": int(ok.sum()), "n_cells": len(cells), "seed": args.seed})
+    metrics = {"e2_low_sin": lambda m: e2_weighted(pred_of(m, table.wo[ok], table.wi[ok]), table.values[ok],
+                                                   table.wi[ok, 2], w[ok]),
+               "e2_cells": lambda m: e2_cells(pred_of(m, cells.wo, cells.wi), cells.values, cells.wi[:, 2], cells.valid)}
+    fit_and_report(rec, todo, table, args, metrics, name, f"MERL {name} (surrogate): {{best}}, E2 loss (Löw sampling)",
+                   brdf.to_table)
+    rec["seconds"] = rec.get("seconds", 0) + time.perf_counter() - t0
+    jpath.write_text(json.dumps(jsonable(rec), indent=1))
+    path.unlink()  # 35 MB; rebuilt on demand
+    return rec
+
+
+# ------------------------------------------------------------------ RGL
+def run_rgl(path, args):
+    from matfit.io import load
+
+    name = path.stem
+    jpath = ITEMS / f"rgl_{name}.json"
+    rec = json.loads(jpath.read_text()) if jpath.exists() else {"kind": "rgl", "file": path.name}
+    fams = list(FAMILIES) + [f for f, names in EXTRA.items() if args.extra and name in names]
+    todo = [f for f in fams if f not in rec.get("fits", {})]
+    if not todo:
+        return rec
+    t0 = time.perf_counter()
+    full = load(path)
+    table, n_real = padded(full, args.n_rgl, args.seed)
+    rec.update({"n_rows_full": len(full), "n_valid_full": int(full.n_valid), "n_rows_fit": n_real})
+    metrics = {"e2_fit_rows": lambda m: e2_cells(pred_of(m, table.wo, table.wi), table.values, table.wi[:, 2], table.valid),
+               "e2_all_rows": lambda m: e2_cells(pred_of(m, full.wo, full.wi), full.values, full.wi[:, 2], full.valid)}
+    fit_and_report(rec, todo, table, args, metrics, name, f"RGL {name}: {{best}}, E2 loss", lambda: full)
+    rec["seconds"] = rec.get("seconds", 0) + time.perf_counter() - t0
+    jpath.write_text(json.dumps(jsonable(rec), indent=1))
+    return rec
 
 
 # ------------------------------------------------------------------ main
 def main(argv=None):
     args = parse_args(argv)
     shared = Path(args.shared).resolve()
-    need = [shared / "tools" / "merl_surrogate.py", shared / "data" / "published_fits" / "low_cooktorrance_E2.fit",
-            shared / "data" / "rgl"]
+    fitfile = shared / "data" / "published_fits" / "low_cooktorrance_E2.fit"
+    need = [shared / "tools" / "merl_surrogate.py", fitfile, shared / "data" / "rgl"]
     missing = [str(p) for p in need if not p.exists()]
     if missing:
         sys.exit(f"fit_measured: shared folder {shared} is missing or incomplete; not found: {', '.join(missing)}.\n"
                  f"Pass the shared folder as the first argument (default: ../shared relative to the repo root).")
+    ITEMS.mkdir(parents=True, exist_ok=True)
+    if not args.summary:
+        import jax
 
+        if not args.x32:
+            jax.config.update("jax_enable_x64", True)
+        sys.path.insert(0, str(shared / "tools"))
+        import merl_surrogate
+
+        cache = OUT / "cache"
+        cache.mkdir(parents=True, exist_ok=True)
+        if not (cache / ".gitignore").exists():
+            (cache / ".gitignore").write_text("*\n!.gitignore\n")
+        low = parse_low_fits(fitfile)
+        available = set(merl_surrogate.materials())
+        names = args.materials.split(",") if args.materials else MATERIALS
+        for n in names:
+            if n not in low or n not in available:
+                sys.exit(f"fit_measured: no published Löw fit or no surrogate for MERL material {n!r}")
+        T0 = time.perf_counter()
+        if not args.skip_merl:
+            for name in names:
+                run_merl(name, low, args, shared)
+        if not args.skip_rgl:
+            for path in sorted((shared / "data" / "rgl").glob("*.bsdf")):
+                run_rgl(path, args)
+        print(f"fits done in {time.perf_counter() - T0:.0f} s", flush=True)
+    write_summary(args)
+
+
+# ------------------------------------------------------------------ summary
+def _g(v, nd=3):
+    return f"{v:.{nd}g}" if isinstance(v, (int, float)) else "-"
+
+
+def _params(d):
+    parts = []
+    for k, v in d.items():
+        if isinstance(v, list):
+            parts.append(f"{k}=[" + ", ".join(f"{x:.3g}" for x in v) + "]")
+        else:
+            parts.append(f"{k}={v:.3g}")
+    return ", ".join(parts)
+
+
+def write_summary(args):
     import jax
 
-    if not args.x32:
-        jax.config.update("jax_enable_x64", True)
-    import numpy as np
-
-    from matfit.io import load
-    from matfit.report import write_report
-
-    sys.path.insert(0, str(shared / "tools"))
-    import merl_surrogate  # noqa: E402
-
-    T0 = time.perf_counter()
-    cache = OUT / "cache"
-    cache.mkdir(parents=True, exist_ok=True)
-    gi = cache / ".gitignore"
-    if not gi.exists():
-        gi.write_text("*\n!.gitignore\n")
-    low = parse_low_fits(need[1])
-    available = set(merl_surrogate.materials())
-    names = args.materials.split(",") if args.materials else MATERIALS[:args.n_merl]
-    names = [n for n in names if n in low and n in available]
-
-    merl_rows = []
-    for name in names:
-        t0 = time.perf_counter()
-        path = cache / f"{name}.binary"
-        if not path.exists():
-            merl_surrogate.write_merl(name, str(path))
-        full = load(path)
-        table = full.subsample(args.n_sub, seed=args.seed)
-        t_load = time.perf_counter() - t0
-        fits = fit_families(table, args.starts, args.seed, args.max_steps)
-        row = {"material": name, "n_valid_full": int(full.n_valid), "n_rows": len(table), "load_seconds": t_load}
-        for fam, d in fits.items():
-            if "error" in d:
-                row[fam] = {"error": d["error"], "seconds": d["seconds"]}
-                continue
-            res = d["result"]
-            mse, s = e2_metric(model_pred(res.model, table), table)
-            row[fam] = {"e2_mean": mse, "e2_sum": s, "objective": res.objective, "converged": res.converged,
-                        "steps": res.steps, "seconds": d["seconds"], "params": params_dict(res),
-                        "start_objectives": np.asarray(res.start_objectives).tolist()}
-        mse, s = e2_metric(low_cooktorrance(low[name], table.wo, table.wi), table)
-        row["low_ct"] = {"e2_mean": mse, "e2_sum": s, "params": low[name]}
-        best = min((row[f]["e2_mean"] for f in FAMILIES if "e2_mean" in row[f]), default=float("nan"))
-        row["ratio_best_over_low"] = best / mse if mse > 0 else float("nan")
-        merl_rows.append(row)
-        print(f"[merl] {name}: plastic {row['plastic'].get('e2_mean', float('nan')):.4g} "
-              f"conductor {row['conductor'].get('e2_mean', float('nan')):.4g} low {mse:.4g} "
-              f"({time.perf_counter() - t0:.1f} s)", flush=True)
-        path.unlink()  # 35 MB each; rebuilt on demand
-
-    rgl_rows = []
-    if not args.skip_rgl:
-        paths = sorted((shared / "data" / "rgl").glob("*.bsdf"))
-        tables = {p: load(p) for p in paths}
-        # One row count for every file (the smallest valid count caps it), so the solver compiles once.
-        n = min([args.n_sub] + [int(t.n_valid) for t in tables.values()])
-        for path in paths:
-            t0 = time.perf_counter()
-            full = tables[path]
-            table = full.subsample(n, seed=args.seed)
-            fits = fit_families(table, args.starts, args.seed, args.max_steps)
-            row = {"file": path.name, "n_rows_full": len(full), "n_valid_full": int(full.n_valid), "n_rows_fit": n}
-            for fam, d in fits.items():
-                if "error" in d:
-                    row[fam] = {"error": d["error"]}
-                    continue
-                res = d["result"]
-                mse_fit, _ = e2_metric(model_pred(res.model, table), table)
-                mse_full, _ = e2_metric(model_pred(res.model, full), full)
-                row[fam] = {"e2_mean_fit_rows": mse_fit, "e2_mean_all_rows": mse_full, "converged": res.converged,
-                            "steps": res.steps, "seconds": d["seconds"], "params": params_dict(res)}
-            ok = [f for f in FAMILIES if "e2_mean_fit_rows" in row[f]]
-            best = min(ok, key=lambda f: row[f]["e2_mean_fit_rows"]) if ok else None
-            row["best"] = best
-            if best is not None:
-                rep = OUT / "reports" / path.stem
-                try:
-                    write_report(fits[best]["result"], full, rep, title=f"{path.stem}: {best} (E2 loss)",
-                                 max_rows=20000)
-                    row["report"] = str(rep.relative_to(REPO))
-                except Exception as e:  # report bugs are reported, not fatal
-                    row["report_error"] = f"{type(e).__name__}: {e}"
-            row["seconds"] = time.perf_counter() - t0
-            rgl_rows.append(row)
-            print(f"[rgl] {path.name}: best {best} "
-                  + " ".join(f"{f} {row[f].get('e2_mean_fit_rows', float('nan')):.4g}" for f in FAMILIES)
-                  + f" ({row['seconds']:.1f} s)", flush=True)
-
-    total = time.perf_counter() - T0
-    meta = {"machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
-                        "cpus": os.cpu_count(), "python": platform.python_version(), "jax": jax.__version__,
-                        "backend": jax.default_backend(), "x64": not args.x32},
-            "total_seconds": total, "n_sub": args.n_sub, "starts": args.starts, "max_steps": args.max_steps, "seed": args.seed,
-            "e2_definition": "mean over valid rows x channels of (log1p(f cos_i) - log1p(y cos_i))^2",
-            "shared": str(shared)}
-    OUT.mkdir(parents=True, exist_ok=True)
-    (OUT / "fit_measured.json").write_text(json.dumps({"meta": meta, "merl": merl_rows, "rgl": rgl_rows}, indent=1,
-                                                      default=float))
-    write_md(OUT / "fit_measured.md", meta, merl_rows, rgl_rows)
-    print(f"done in {total:.1f} s -> {OUT / 'fit_measured.md'}")
-
-
-def _g(d, k="e2_mean"):
-    v = d.get(k)
-    return f"{v:.4g}" if isinstance(v, float) else ("failed" if "error" in d else "-")
-
-
-def write_md(path, meta, merl_rows, rgl_rows):
-    m = meta["machine"]
+    merl = [json.loads(p.read_text()) for p in sorted(ITEMS.glob("merl_*.json"))]
+    order = {n: i for i, n in enumerate(MATERIALS)}
+    merl.sort(key=lambda r: order.get(r["material"], 99))
+    rgl = [json.loads(p.read_text()) for p in sorted(ITEMS.glob("rgl_*.json"))]
+    meta = {"machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "python": platform.python_version(),
+                        "jax": jax.__version__, "x64": not args.x32},
+            "n_rows": args.n_rows, "n_cells": args.n_cells, "n_rgl": args.n_rgl, "starts": args.starts,
+            "max_steps": args.max_steps, "seed": args.seed}
+    (OUT / "fit_measured.json").write_text(json.dumps({"meta": meta, "merl": merl, "rgl": rgl}, indent=1))
+    fams_m = sorted({f for r in merl for f in r.get("fits", {})}, key=lambda f: (f not in FAMILIES, f))
     L = ["# Fits to measured BRDFs with the E2 loss (Löw et al. 2012)", "",
-         f"Machine: {m['platform']}, {m['cpus']} CPUs, JAX {m['jax']} ({m['backend']}, x64={m['x64']}); "
-         f"total {meta['total_seconds']:.0f} s. Rows per fit: {meta['n_sub']} (valid, seed {meta['seed']}); "
-         f"robust_fit, starts={meta['starts']}, max_steps={meta['max_steps']}, method lm.", "",
-         f"E2 = {meta['e2_definition']} (matfit.fitting.residuals, loss=\"e2\"; the same rows for every model).", "",
-         "## MERL (neural surrogates of Sztrajman et al. 2021, not the raw measurements)", "",
-         "The published fit is the Löw 2012 Cook-Torrance E2 fit (bsdfbenchmark/bbm), fitted by its authors to the "
-         "real MERL data, evaluated here on the surrogate. Ratio = best matfit E2 / Löw CT E2.", "",
-         "| MERL material | E2 matfit plastic | E2 matfit conductor | E2 Löw CT | ratio | fit s (pl / co) |",
-         "|---|---|---|---|---|---|"]
-    for r in merl_rows:
-        L.append(f"| {r['material']} | {_g(r['plastic'])} | {_g(r['conductor'])} | {_g(r['low_ct'])} | "
-                 f"{r['ratio_best_over_low']:.3g} | {r['plastic'].get('seconds', 0):.0f} / {r['conductor'].get('seconds', 0):.0f} |")
-    L += ["", "Fitted parameters:", "", "| MERL material | plastic | conductor | Löw CT (kd, ks, m, eta) |", "|---|---|---|---|"]
-    for r in merl_rows:
-        L.append(f"| {r['material']} | {fmt_params(r['plastic'].get('params', {}))} | "
-                 f"{fmt_params(r['conductor'].get('params', {}))} | {fmt_params(r['low_ct']['params'])} |")
+         "`experiments/fit_measured.py` (per-material JSON in `fit_measured/`, reports in `reports/<name>/`). "
+         f"{meta['machine']['cpus']} shared CPUs, JAX {meta['machine']['jax']}, float64. Each family: `fit(loss=\"e2\")`, "
+         f"{args.starts} starts (the data-driven guess and perturbed copies), at most {args.max_steps} "
+         "Levenberg-Marquardt steps" + (", and the same from a generic point; the better of the two." if args.two_inits
+                                        else "."), "",
+         "E2 per sample = mean over RGB of `(log(1 + f cos_i) - log(1 + y cos_i))^2`; the tables give means over "
+         "samples (not square roots). How the published Löw model and metric were checked: "
+         "`fit_measured_low2012.md`.", "",
+         "## MERL (surrogates of Sztrajman et al. 2021 in the MERL layout, not the measurements)", "",
+         f"**E2 (Löw)**: the metric Löw et al. fitted with (bbm `lowLog`): {args.n_rows} direction pairs with "
+         "theta_i, phi_i, theta_o uniform, phi_o = 0, weighted by sin(theta_i), values looked up in the MERL table; "
+         "the matfit families were fitted on exactly these rows and weights, and the published Löw Cook-Torrance E2 "
+         "fit is evaluated on the same rows. **E2 (cells)**: the unweighted mean over "
+         f"{args.n_cells} random valid MERL cells (cells crowd near the mirror direction and a third of them have "
+         "theta_d > 60 deg), for the same two fits; no fit here minimized it. "
+         "Ratio = best matfit / Löw CT, E2 (Löw).", "",
+         "| MERL material | " + " | ".join(f"E2 (Löw) {f}" for f in fams_m) + " | E2 (Löw) Löw CT | ratio | "
+         + " | ".join(f"E2 (cells) {f}" for f in fams_m) + " | E2 (cells) Löw CT | report |",
+         "|---|" + "---|" * (2 * len(fams_m) + 4)]
+    for r in merl:
+        fits = r.get("fits", {})
+        lo = r["low_ct"]["published"]
+        vals = [fits.get(f, {}).get("e2_low_sin") for f in fams_m]
+        okv = [v for v in vals if isinstance(v, float)]
+        ratio = min(okv) / lo["e2_low_sin"] if okv else None
+        rep = f"[{r['material']}](reports/{r['material']}/report.md)" if "report" in r else r.get("report_error", "-")
+        L.append(f"| {r['material']} | " + " | ".join(_g(v) for v in vals) + f" | {_g(lo['e2_low_sin'])} | {_g(ratio, 2)} | "
+                 + " | ".join(_g(fits.get(f, {}).get("e2_cells")) for f in fams_m)
+                 + f" | {_g(lo['e2_cells'])} | {rep} |")
+    L += ["", "Sensitivity of the Löw CT numbers to the one ambiguous factor of the model form (D with 1/pi, i.e. a "
+          "normalized Beckmann, against the published form without it):", "",
+          "| MERL material | E2 (Löw), published form | E2 (Löw), D/pi | E2 (cells), published form | E2 (cells), D/pi |",
+          "|---|---|---|---|---|"]
+    for r in merl:
+        a, b = r["low_ct"]["published"], r["low_ct"]["D_over_pi"]
+        L.append(f"| {r['material']} | {_g(a['e2_low_sin'])} | {_g(b['e2_low_sin'])} | {_g(a['e2_cells'])} | {_g(b['e2_cells'])} |")
+    L += ["", "Fitted parameters (matfit families: `alpha` GGX width, `albedo` diffuse albedo, `eta`/`k` index; "
+          "Löw CT: kd, ks, Beckmann m, eta):", "", "| MERL material | family | parameters | E2 (Löw) | steps | s |",
+          "|---|---|---|---|---|---|"]
+    for r in merl:
+        for f in fams_m:
+            d = r.get("fits", {}).get(f)
+            if d is None:
+                continue
+            if "error" in d:
+                L.append(f"| {r['material']} | {f} | failed: {d['error'][:80]} | - | - | - |")
+                continue
+            L.append(f"| {r['material']} | {f} | {_params(d['params'])} | {_g(d['e2_low_sin'])} | {d['steps']} | "
+                     f"{d['seconds']:.0f} |")
+        L.append(f"| {r['material']} | Löw CT | {_params(r['low_ct']['params'])} | {_g(r['low_ct']['published']['e2_low_sin'])} | - | - |")
+    fams_r = sorted({f for r in rgl for f in r.get("fits", {})}, key=lambda f: (f not in FAMILIES, f))
     L += ["", "## RGL (measured, Dupuy & Jakob 2018)", "",
-          "Fitted to a fixed-size random subset of the valid rows; E2 on the fit rows and on all valid rows of the file. "
-          "The report (reports/<name>/) is for the family with the lower E2.", "",
-          "| RGL file | family | parameters | E2 (fit rows) | E2 (all rows) | other family E2 | report |", "|---|---|---|---|---|---|---|"]
-    for r in rgl_rows:
-        b = r["best"]
-        if b is None:
-            L.append(f"| {r['file']} | failed | - | - | - | - | - |")
-            continue
-        other = [f for f in FAMILIES if f != b][0]
-        L.append(f"| {r['file']} | {b} | {fmt_params(r[b]['params'])} | {_g(r[b], 'e2_mean_fit_rows')} | "
-                 f"{_g(r[b], 'e2_mean_all_rows')} | {other}: {_g(r[other], 'e2_mean_fit_rows')} | "
-                 f"{r.get('report', r.get('report_error', '-'))} |")
-    Path(path).write_text("\n".join(L) + "\n")
+          f"Fitted on the file's valid rows (a random {args.n_rgl} where there are more), equal weights; E2 on the fit "
+          "rows and on all valid rows. Report for the family of lowest E2.", "",
+          "| RGL file | valid rows (fit / all) | " + " | ".join(f"E2 {f}" for f in fams_r) + " | best | E2 best, all rows | report |",
+          "|---|---|" + "---|" * (len(fams_r) + 3)]
+    for r in rgl:
+        fits = r.get("fits", {})
+        b = r.get("best")
+        rep = (f"[{Path(r['file']).stem}](reports/{Path(r['file']).stem}/report.md)" if "report" in r
+               else r.get("report_error", "-"))
+        L.append(f"| {r['file']} | {r['n_rows_fit']} / {r['n_valid_full']} | "
+                 + " | ".join(_g(fits.get(f, {}).get("e2_fit_rows")) for f in fams_r)
+                 + f" | {b} | {_g(fits.get(b, {}).get('e2_all_rows'))} | {rep} |")
+    L += ["", "| RGL file | family | parameters | steps | s |", "|---|---|---|---|---|"]
+    for r in rgl:
+        for f in fams_r:
+            d = r.get("fits", {}).get(f)
+            if d and "params" in d:
+                L.append(f"| {r['file']} | {f} | {_params(d['params'])} | {d['steps']} | {d['seconds']:.0f} |")
+    (OUT / "fit_measured.md").write_text("\n".join(L) + "\n")
+    print(f"-> {OUT / 'fit_measured.md'}")
 
 
 if __name__ == "__main__":
