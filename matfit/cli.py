@@ -158,6 +158,8 @@ def _cmd_fit(args):
     if posterior is not None:
         print(posterior.summary().splitlines()[0])
     print(_param_table(result, tparams, posterior))
+    for w in getattr(result, "warnings", []):
+        print(f"  WARNING {w}")
     if result.params and any(not any(l == k or l.startswith(k + "[") for l in result.labels) for k in result.params):
         print("  fixed: " + ", ".join(f"{k}={np.asarray(v).round(6).tolist()}" for k, v in result.params.items()
                                       if not any(l == k or l.startswith(k + "[") for l in result.labels)))

@@ -631,6 +631,7 @@ def write_report(result, table, out_dir, posterior=None, truth=None, history=Non
         "title": title or f"{result.family} fit",
         "family": result.family, "method": result.method, "loss": result.loss,
         "converged": bool(result.converged), "steps": int(result.steps), "wall_time_s": float(result.wall_time),
+        "warnings": list(getattr(result, "warnings", [])),
         "start_objectives": np.asarray(result.start_objectives, float).tolist(),
         "table": {"n": len(table), "n_valid": int(table.n_valid), "channels": table.channels if isinstance(table.channels, str)
                   else list(table.channels), "source": table.provenance.get("source") or table.provenance.get("scene")},
@@ -661,6 +662,8 @@ def _write_markdown(path, s, table, result, has_truth, has_post, files):
     L = [f"# {s['title']}", ""]
     L.append(f"Family **{s['family']}**, method `{s['method']}`, loss `{s['loss']}`: objective {_fmt(s['metrics']['objective'])}, "
              f"{s['steps']} steps, converged = {s['converged']}, {s['wall_time_s']:.2f} s.")
+    if s.get("warnings"):
+        L += ["", "**Diagnostics** (`matfit.fitting.diagnostics`):", ""] + [f"- {w}" for w in s["warnings"]]
     L += ["", "```", table.summary(), "```", "", "## Parameters", ""]
     head = ["parameter", "value", "std. error"]
     if has_post:
