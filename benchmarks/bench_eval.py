@@ -259,6 +259,7 @@ def main(argv=None):
     ap.add_argument("--numpy-n", type=int, default=None, help="pairs for the numpy baselines (default: --n)")
     ap.add_argument("--out", default=str(HERE / "results" / "bench_eval.json"))
     args = ap.parse_args(argv)
+    load_start = machine_info()["uptime"]
 
     import jax
 
@@ -358,7 +359,7 @@ def main(argv=None):
             print(f"  {k:16s} {row[f'{k}_Mps']:9.2f} M/s (best {row[f'{k}_best_Mps']:9.2f}, spread {row[f'{k}_spread']:.2f})")
         print(f"  errors: f32 vs f64 {row['err_f32_vs_f64']:.1e}, soa vs eval {row['err_soa_vs_eval_f64']:.1e}, "
               f"numpy {row['err_numpy_vs_f64']}, mitsuba {row['err_mitsuba_vs_f64']}", flush=True)
-        write_json("bench_eval", rows, args=vars(args), extra={"mitsuba": mit_note}, path=args.out)
+        write_json("bench_eval", rows, args=vars(args), extra={"mitsuba": mit_note, "load_start": load_start}, path=args.out)
 
     print(f"\nN = {args.n} pairs, median of {args.repeat} interleaved repeats; M evaluations/s "
           f"({time.time() - t_start:.0f} s total)")
@@ -370,7 +371,8 @@ def main(argv=None):
         ("err_f32_vs_f64", "f32 err", ".1e"), ("err_mitsuba_vs_f64", "mi diff", ".1e"),
     ])
     p = write_json("bench_eval", rows, args=vars(args),
-                   extra={"mitsuba": mit_note, "load_after": machine_info()["uptime"], "niceness": os.nice(0)},
+                   extra={"mitsuba": mit_note, "load_start": load_start, "load_after": machine_info()["uptime"],
+                          "niceness": os.nice(0)},
                    path=args.out)
     print(f"wrote {p}")
 
