@@ -85,7 +85,9 @@ class Beckmann(AbstractDistribution):
         mz = m[..., 2]
         pos = mz > 0
         mz_s = jnp.where(pos, mz, 1)
-        d = jnp.exp(-self._slope2(m)) / (jnp.pi * ax * ay * sq(sq(mz_s)))
+        # exp(-s) / mz^4 as one exponential: far from the normal exp(-s) underflows to 0 while
+        # the derivative of 1/mz^4 overflows (0 * inf); the log form keeps both finite.
+        d = jnp.exp(-self._slope2(m) - 4 * jnp.log(mz_s)) / (jnp.pi * ax * ay)
         return jnp.where(pos, d, 0)
 
     def Lambda(self, v):

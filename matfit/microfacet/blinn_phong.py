@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from .._math import safe_div, sq
+from .._math import sq
 from ._base import AbstractDistribution
 from .beckmann import beckmann_lambda
 
@@ -43,7 +43,10 @@ class BlinnPhong(AbstractDistribution):
     def _e_phi(self, m):
         ex, ey = self.exponent
         rxy2 = sq(m[..., 0]) + sq(m[..., 1])
-        c2 = safe_div(sq(m[..., 0]), rxy2, 1.0)
+        # cos^2 phi; within machine epsilon of the normal the azimuth is irrelevant (and the
+        # quotient's derivative -mx^2/rxy2^2 would underflow to 0/0).
+        big = rxy2 > jnp.finfo(jnp.result_type(rxy2)).eps ** 2
+        c2 = jnp.where(big, sq(m[..., 0]) / jnp.where(big, rxy2, 1), 1.0)
         return ex * c2 + ey * (1 - c2)
 
     def D(self, m):

@@ -19,7 +19,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from .._math import COS_EPS, dot, flip_up, normalize
+from .._math import COS_EPS, dot, refract, safe_div
 from ..fresnel import fresnel_dielectric, fresnel_dielectric_average
 from .rough_dielectric import RoughDielectric
 from .smooth_dielectric import SmoothDielectric
@@ -68,17 +68,21 @@ def coat_transmittance_table(coat, order=COAT_ORDER, nodes=COAT_NODES, dtype=Non
     x, w = _gl01(order, dtype)
     u1, u2 = jnp.meshgrid(x, x, indexing="ij")
     wts = (w[:, None] * w[None, :]).reshape(-1)
-    u = jnp.stack([jnp.full(u1.size, 1 - 1e-7, dtype), u1.reshape(-1), u2.reshape(-1)], -1)
+    u = jnp.stack([u1.reshape(-1), u2.reshape(-1)], -1)
     wob = jnp.broadcast_to(wo[:, None, :], (nodes, u.shape[0], 3))
     ub = jnp.broadcast_to(u[None], (nodes,) + u.shape)
-    wi, weight, _ = coat.sample(wob, ub)
-    # With u0 -> 1 the sample is a transmission unless F = 1, and its weight is
-    # f_t cos / (pdf_m J (1 - F)): multiplying by (1 - F) at the sample's microfacet gives the
-    # transmitted radiance fraction, and eta^2 turns it into energy.
-    trans = wi[..., 2] < 0
-    m = flip_up(normalize(wi * coat.eta + wob))
-    one_minus_F = 1 - fresnel_dielectric(dot(wob, m), coat.eta)
-    e = jnp.where(trans, weight[..., 0] * one_minus_F * coat.eta**2, 0)
+    # Visible normals m from wo; the refracted direction wt carries the energy fraction
+    # (1 - F(wo.m)) G2(wo, wt, m) / G1(wo, m): the transmission sample weight times the lobe's
+    # probability, written without eval/pdf (same integral, a much smaller program to compile).
+    d = coat.dist()
+    m = d.sample_visible(wob, ub)
+    c = dot(wob, m)
+    wt, ok = refract(wob, m, coat.eta)
+    ok = ok & (wt[..., 2] < -COS_EPS) & (c > 0)
+    g1o = d.G1(wob, m)
+    wt = jnp.where(ok[..., None], wt, jnp.asarray([0.0, 0.0, -1.0], dtype))  # double where
+    ratio = safe_div(d.G2(wob, wt, m, coat.masking), g1o)
+    e = jnp.where(ok, (1 - fresnel_dielectric(c, coat.eta)) * ratio, 0)
     T = jnp.sum(e * wts, axis=-1)
     return mu, T
 
