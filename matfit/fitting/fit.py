@@ -17,12 +17,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import MatfitError, ParameterError
+from ..parallel import device_count, shard_batch
 from ..table import Table
 from .diagnostics import diagnose
+from .lm import column_groups, jacobian, lm_fd
 from .losses import check_loss, residuals
 from .params import Parametrization, get_family
 
-METHODS = ("lm", "gn", "dogleg", "bfgs", "lbfgs", "jaxopt_lm")
+METHODS = ("lm", "gn", "dogleg", "bfgs", "lbfgs", "jaxopt_lm", "lm_fd")
 
 
 class FitError(MatfitError):
@@ -95,8 +97,30 @@ def _residual_fn(par, loss, robust, scale):
     return fn
 
 
-def _solve_one(fn, method, z0, arrays, max_steps, rtol, atol):
+def _split_rows(arrays):
+    """Rows split over every device (:mod:`matfit.parallel`; a no-op on one device). Padding rows
+    copy the last row with weight 0, so they add nothing to the residuals."""
+    nd = device_count()
+    pad = (-arrays[0].shape[0]) % nd
+    if nd == 1:
+        return arrays
+    if pad:
+        wo, wi, v = (jnp.concatenate([a, jnp.repeat(a[-1:], pad, axis=0)]) for a in arrays[:3])
+        arrays = (wo, wi, v, jnp.concatenate([arrays[3], jnp.zeros((pad,) + arrays[3].shape[1:], arrays[3].dtype)]))
+    return shard_batch(arrays)[0]
+
+
+def _by_channel(fn):
+    """The flat residuals of ``fn`` as (N, C), the layout :func:`lm_fd` works on."""
+    return lambda z, arrays: fn(z, arrays).reshape(arrays[2].shape)
+
+
+def _solve_one(fn, method, z0, arrays, max_steps, rtol, atol, groups=None):
     import optimistix as optx
+
+    if method == "lm_fd":
+        z, _, steps, ok, _, _ = lm_fd(_by_channel(fn), z0, arrays, *groups, max_steps=max_steps, rtol=rtol, atol=atol)
+        return z, steps, ok
 
     def obj(z, args):
         r = fn(z, args)
@@ -123,14 +147,18 @@ def _solver(family, channels, fixed_items, tied, method, loss, robust, scale, ma
     """Compiled multi-start solver for one configuration (cached: no recompilation)."""
     par = Parametrization(family, channels, dict(fixed_items), tied)
     fn = _residual_fn(par, loss, robust, scale)
+    groups = column_groups(par)
 
     def run(z0s, arrays):
-        z, steps, ok = jax.vmap(lambda z0: _solve_one(fn, method, z0, arrays, max_steps, rtol, atol))(z0s)
+        z, steps, ok = jax.vmap(lambda z0: _solve_one(fn, method, z0, arrays, max_steps, rtol, atol, groups))(z0s)
         r = jax.vmap(lambda zz: fn(zz, arrays))(z)
         obj = 0.5 * jnp.sum(r * r, axis=-1)
         return z, obj, steps, ok
 
     def jac(z, arrays):
+        if method == "lm_fd":  # the solver's own Jacobian: grouped differences, no forward-mode AD
+            r, J = jacobian(_by_channel(fn), z, arrays, *groups)
+            return r.reshape(-1), J.reshape(-1, z.shape[-1])
         return fn(z, arrays), jax.jacfwd(fn)(z, arrays)
 
     return par, jax.jit(run), jax.jit(jac)
@@ -203,9 +231,11 @@ def fit(table, model="plastic", method="lm", loss="l2", robust=None, robust_scal
     model : str
         Family name: ``"lambert"``, ``"conductor"``, ``"conductor_beckmann"``, ``"dielectric"``,
         ``"plastic"``, ``"car_paint"`` (see :data:`matfit.fitting.FAMILIES`).
-    method : {"lm", "gn", "dogleg", "bfgs", "lbfgs", "jaxopt_lm"}
+    method : {"lm", "gn", "dogleg", "bfgs", "lbfgs", "jaxopt_lm", "lm_fd"}
         optimistix Levenberg-Marquardt, Gauss-Newton, Dogleg or BFGS; jaxopt LBFGS or
-        Levenberg-Marquardt.
+        Levenberg-Marquardt; ``"lm_fd"``: Levenberg-Marquardt on the normal equations with a
+        grouped finite-difference Jacobian (:mod:`matfit.fitting.lm`), the fastest on large
+        tables (a full MERL table) and for batched fits.
     loss, robust, robust_scale : see :mod:`matfit.fitting.losses`.
     fixed : dict, optional
         Parameters held at given values.  tied : per-channel parameters shared by all channels.
@@ -248,13 +278,14 @@ def fit(table, model="plastic", method="lm", loss="l2", robust=None, robust_scal
         raise FitError(f"fit: the table has {n_res} usable residuals for {par.size} free parameters "
                        f"({', '.join(par.labels)}): at least {par.size + 1} are needed")
     arrays = _table_arrays(table, dtype)
+    n_rows = arrays[2].size
     z0s = _starts(table, par, starts, seed)
     if init is not None:
         g = initial_guess(table, par)
         g.update(init)
         z0s = z0s.at[0].set(par.z_from_theta(g))
     z0s = z0s.astype(arrays[0].dtype)
-    z, obj, steps, ok = run(z0s, arrays)
+    z, obj, steps, ok = run(z0s, _split_rows(arrays))
     obj = np.asarray(obj)
     good = np.isfinite(obj) & np.all(np.isfinite(np.asarray(z)), axis=1)
     if not good.any():
@@ -263,7 +294,7 @@ def fit(table, model="plastic", method="lm", loss="l2", robust=None, robust_scal
     zb = z[best]
     # Uncertainty: Gauss-Newton covariance in the natural parameters (chain rule through the
     # element-wise transform), scaled by the residual variance unless the table carries sigma.
-    r_best, J = (np.asarray(x) for x in jac(zb, arrays))
+    r_best, J = (np.asarray(x)[:n_rows] for x in jac(zb, _split_rows(arrays)))
     dtheta = np.asarray(jax.jacfwd(par.theta_vector)(zb)).diagonal()
     Jt = J / np.where(dtheta != 0, dtheta, np.inf)
     rss = float(2 * obj[best])
@@ -310,10 +341,19 @@ def fit_batch(tables, model="plastic", method="lm", loss="l2", fixed=None, tied=
     fixed_items = tuple(sorted((k, tuple(np.atleast_1d(np.asarray(v, float)).tolist())) for k, v in (fixed or {}).items()))
     par, run, _ = _solver(model, t0.n_channels, fixed_items, tuple(tied), method, loss, None, 1.0,
                           int(max_steps), float(rtol), float(atol))
-    arrs = [_table_arrays(t, dtype) for t in tables]
-    stacked = tuple(jnp.stack([a[i] for a in arrs]) for i in range(4))
-    z0 = jnp.stack([_starts(t, par, starts, 0) for t in tables]).astype(stacked[0].dtype)
+    # Stacked on the host and moved once; the data-driven guesses are mapped to z in one call.
+    stacked = tuple(jnp.asarray(np.stack(a), dtype=dtype) for a in zip(
+        *((t.wo, t.wi, t.values, t.effective_weight()) for t in tables)))
+    guesses = [initial_guess(t, par) for t in tables]
+    base = jax.vmap(par.z_from_theta)({k: jnp.asarray(np.stack([np.broadcast_to(g[k], np.shape(guesses[0][k]))
+                                                                   for g in guesses]), float) for k in guesses[0]})
+    pert = np.random.default_rng(0).normal(0, 1.0, (max(starts, 1) - 1, par.size))  # as _starts(seed=0)
+    z0 = (base[:, None, :] + jnp.concatenate([jnp.zeros((1, par.size)), jnp.asarray(pert)])[None]).astype(
+        stacked[0].dtype)
+    # One block of tables per device (every CPU core with host devices, see matfit.parallel).
+    (z0, stacked), n = shard_batch((z0, stacked))
     z, obj, _, _ = batched_run(run)(z0, stacked)
+    z, obj = z[:n], obj[:n]
     best = jnp.argmin(obj, axis=1)
     zb = jnp.take_along_axis(z, best[:, None, None], axis=1)[:, 0]
     return np.asarray(par.theta_vector(zb)), np.asarray(jnp.min(obj, axis=1)), par.labels

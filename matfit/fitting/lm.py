@@ -1,0 +1,212 @@
+r"""Levenberg-Marquardt on the normal equations with a grouped forward-difference Jacobian.
+
+The fast solver behind ``fit(..., method="lm_fd")`` for large tables (a full MERL table has
+about 1.1 million valid cells, 3.3 million residuals) and for many small batched fits. One call
+is one XLA ``while_loop``; every iteration costs a few evaluations of the model on the table and
+a :math:`p \times p` solve, never an :math:`N \times p` factorization.
+
+Jacobian
+    By forward differences, :math:`J_{:,j} \approx (r(z + h_j e_j) - r(z))/h_j` with
+    :math:`h_j = \sqrt{\epsilon}\,\max(1, |z_j|)` (the rule of ``scipy.optimize.least_squares``
+    and MINPACK), or central differences (``eps^(1/3)`` steps) in float32. Columns are grouped
+    (Curtis, Powell & Reid 1974): the per-channel parameters of one name (``albedo[0..C-1]``,
+    ``eta[0..C-1]``) affect disjoint colour channels (every model's channels are independent in
+    ``eval``), so one evaluation perturbs all of them at once. A family with ``G`` parameter
+    names needs ``G`` extra evaluations per Jacobian (forward differences), whatever ``C``.
+    Forward-mode AD (``jax.jacfwd``) gives the same matrix to rounding but compiles on XLA's CPU
+    backend into many partly recomputed loops and runs 10-20 times slower than the evaluations
+    it replaces (see ``docs/performance.md``).
+
+Normal equations
+    With the compressed differences :math:`K_c` (rows x groups) of channel ``c`` and the map
+    :math:`E_c` from groups to parameters (``1/h_j`` where parameter ``j`` of group ``g`` acts
+    on channel ``c``): :math:`J^T J = \sum_c E_c^T (K_c^T K_c) E_c`,
+    :math:`J^T r = \sum_c E_c^T K_c^T r_c`.
+
+Steps (Nielsen 1999; Madsen, Nielsen & Tingleff 2004, Alg. 3.16, with Marquardt's scaling)
+    :math:`(J^TJ + \mu\,\mathrm{diag}(J^TJ))\,\delta = -J^Tr`; the gain ratio
+    :math:`\rho = (F(z) - F(z+\delta)) / (\tfrac12\delta^T(\mu D\delta - J^Tr))` accepts the step
+    when positive and updates :math:`\mu \leftarrow \mu\max(1/3, 1-(2\rho-1)^3)`, else
+    :math:`\mu \leftarrow \mu\nu`, :math:`\nu \leftarrow 2\nu`. The Jacobian is recomputed only
+    after an accepted step (rejected steps cost one evaluation).
+
+Stopping
+    ``converged`` when an accepted step changes the objective by at most
+    ``rtol * F + atol`` and every parameter by at most ``rtol * |z| + atol`` (the Cauchy test of
+    optimistix), when the gradient's largest entry is at most ``atol``, or when no decrease is
+    possible any more (``max_reject`` consecutive rejected steps: the objective is at its
+    floating-point floor). Otherwise the loop stops after ``max_steps`` Jacobians.
+
+References
+----------
+- K. Levenberg, Q. Appl. Math. 2(2), 1944; D. W. Marquardt, J. SIAM 11(2), 1963.
+- H. B. Nielsen, "Damping parameter in Marquardt's method", IMM-REP-1999-05, DTU, 1999.
+- K. Madsen, H. B. Nielsen, O. Tingleff, "Methods for Non-Linear Least Squares Problems", 2004.
+- A. R. Curtis, M. J. D. Powell, J. K. Reid, "On the estimation of sparse Jacobian matrices",
+  J. Inst. Maths Applics 13, 1974.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+__all__ = ["column_groups", "jacobian", "lm_fd", "normal_equations"]
+
+
+def column_groups(par):
+    """Seeds and channel masks of the grouped Jacobian for a :class:`Parametrization`.
+
+    Returns ``(seeds, owner)``: ``seeds`` (G, p) has a 1 for every parameter perturbed by
+    evaluation ``g`` (one group per parameter name), ``owner`` (C, p) a 1 where parameter ``j``
+    acts on channel ``c`` (all channels for shared or tied parameters, channel ``i`` only for
+    ``name[i]``).
+    """
+    C, p = par.channels, par.size
+    seeds, owner, i = [], np.ones((C, p)), 0
+    for prm, n in zip(par.free, par.sizes):
+        s = np.zeros(p)
+        s[i:i + n] = 1
+        seeds.append(s)
+        if n == C and C > 1:
+            owner[:, i:i + n] = np.eye(C)
+        i += n
+    return np.array(seeds), owner
+
+
+def _steps(z, central):
+    eps = jnp.finfo(z.dtype).eps
+    base = eps ** (1 / 3) if central else jnp.sqrt(eps)
+    return base * jnp.maximum(1.0, jnp.abs(z))
+
+
+def _differences(fn, z, args, seeds, owner, central, r):
+    """Compressed differences ``K`` (G, N, C), the group-to-parameter map ``E`` (C, G, p) and ``r``."""
+    seeds = jnp.asarray(seeds, z.dtype)
+    owner = jnp.asarray(owner, z.dtype)
+    if r is None:
+        r = fn(z, args)
+    h = _steps(z, central)
+    # One vmapped evaluation of the G perturbed points: the model appears once in the program
+    # (compile time), and what depends only on the table's directions is computed once.
+    D = seeds * h
+    if central:
+        K = jax.vmap(lambda d: fn(z + d, args) - fn(z - d, args))(D)
+    else:
+        K = jax.vmap(lambda d: fn(z + d, args))(D) - r
+    E = seeds[None, :, :] * owner[:, None, :] / ((2 * h) if central else h)
+    return K, E, r
+
+
+def normal_equations(fn, z, args, seeds, owner, central=False, r=None):
+    """``(F, J^T J, J^T r, r)`` at ``z`` for residuals ``fn(z, args)`` of shape (N, C).
+
+    ``F = 0.5 |r|^2``; the Jacobian is the grouped forward (or central) difference of the module
+    docstring. ``r`` may be passed when already known at ``z``.
+    """
+    K, E, r = _differences(fn, z, args, seeds, owner, central, r)
+    M = jnp.einsum("gnc,hnc->cgh", K, K)
+    v = jnp.einsum("gnc,nc->cg", K, r)
+    A = jnp.einsum("cgp,cgh,chq->pq", E, M, E)
+    g = jnp.einsum("cgp,cg->p", E, v)
+    return 0.5 * jnp.sum(r * r), A, g, r
+
+
+def jacobian(fn, z, args, seeds, owner, central=None):
+    """``(r, J)``: residuals (N, C) and the grouped-difference Jacobian (N, C, p) at ``z``."""
+    central = (z.dtype == jnp.float32) if central is None else bool(central)
+    K, E, r = _differences(fn, z, args, seeds, owner, central, None)
+    return r, jnp.einsum("gnc,cgp->ncp", K, E)
+
+
+class _State(NamedTuple):
+    z: jax.Array
+    F: jax.Array
+    A: jax.Array
+    g: jax.Array
+    r: jax.Array
+    mu: jax.Array
+    nu: jax.Array
+    steps: jax.Array
+    evals: jax.Array
+    done: jax.Array
+    ok: jax.Array
+
+
+def lm_fd(fn, z0, args, seeds, owner, max_steps=100, rtol=1e-8, atol=1e-10, central=None, max_reject=12,
+          tau=1e-3):
+    """Minimize ``0.5 |fn(z, args)|^2`` from ``z0`` (see the module docstring).
+
+    Parameters
+    ----------
+    fn : callable ``(z, args) -> (N, C)`` residuals; traceable by JAX.
+    z0 : (p,) starting point.  args : pytree passed through to ``fn``.
+    seeds, owner : from :func:`column_groups`.
+    max_steps : maximum number of Jacobians (accepted steps).
+    rtol, atol : stopping tolerances.  central : central differences (default: float32 only).
+    max_reject : consecutive rejected steps after which the objective counts as minimal.
+    tau : initial damping, relative to the diagonal of ``J^T J``.
+
+    Returns
+    -------
+    (z, F, steps, converged, A, evals) : the solution, ``0.5 |r|^2`` there, the number of
+    accepted steps, whether a stopping test (not ``max_steps``) ended the loop, ``J^T J`` at the
+    solution (for covariances) and the number of model evaluations.
+    """
+    z0 = jnp.asarray(z0)
+    dt = z0.dtype
+    central = (dt == jnp.float32) if central is None else bool(central)
+    G = len(seeds)
+    per_jac = 2 * G if central else G
+    F0, A0, g0, r0 = normal_equations(fn, z0, args, seeds, owner, central)
+    mu0 = jnp.asarray(tau, dt)  # relative to diag(J^T J) (Marquardt's scaling)
+    s = _State(z0, F0, A0, g0, r0, mu0, jnp.asarray(2.0, dt), jnp.asarray(0), jnp.asarray(1 + per_jac),
+               jnp.asarray(False), jnp.asarray(False))
+    p = z0.shape[0]
+    eye = jnp.eye(p, dtype=dt)
+
+    def trial(s):
+        """Rejected steps raise mu until a step decreases F (or max_reject is reached)."""
+        def cond(c):
+            _, _, _, acc, k, _, _ = c
+            return (~acc) & (k < max_reject)
+
+        def body(c):
+            mu, nu, _, _, k, _, _ = c
+            D = jnp.maximum(jnp.diag(s.A), jnp.finfo(dt).eps * jnp.max(jnp.diag(s.A)) + jnp.finfo(dt).tiny)
+            delta = jnp.linalg.solve(s.A + mu * D * eye, -s.g)
+            r_new = fn(s.z + delta, args)
+            F_new = 0.5 * jnp.sum(r_new * r_new)
+            pred = 0.5 * jnp.dot(delta, mu * D * delta - s.g)
+            rho = (s.F - F_new) / jnp.where(pred > 0, pred, jnp.inf)
+            acc = jnp.isfinite(F_new) & (F_new < s.F) & (rho > 0) & jnp.all(jnp.isfinite(delta))
+            mu_acc = mu * jnp.maximum(1 / 3, 1 - (2 * rho - 1) ** 3)
+            mu = jnp.where(acc, mu_acc, mu * nu)
+            nu = jnp.where(acc, 2.0, 2 * nu)
+            return mu, nu, delta, acc, k + 1, F_new, r_new
+
+        init = (s.mu, s.nu, jnp.zeros_like(s.z), jnp.asarray(False), jnp.asarray(0), s.F, s.r)
+        return jax.lax.while_loop(cond, body, init)
+
+    def cond(s):
+        return (~s.done) & (s.steps < max_steps)
+
+    def body(s):
+        mu, nu, delta, acc, k, F_new, r_new = trial(s)
+        z_new = jnp.where(acc, s.z + delta, s.z)
+        r_new = jnp.where(acc, r_new, s.r)
+        F_c, A, g, r = normal_equations(fn, z_new, args, seeds, owner, central, r=r_new)
+        small_f = jnp.abs(s.F - F_c) <= rtol * jnp.abs(s.F) + atol
+        small_z = jnp.all(jnp.abs(delta) <= rtol * jnp.abs(s.z) + atol)
+        small_g = jnp.max(jnp.abs(g)) <= atol
+        stop = (acc & ((small_f & small_z) | small_g)) | ~acc
+        return _State(z_new, F_c, A, g, r, mu, nu, s.steps + acc.astype(s.steps.dtype),
+                      s.evals + k + per_jac, stop, stop)
+
+    small_g0 = jnp.max(jnp.abs(g0)) <= atol
+    s = s._replace(done=small_g0, ok=small_g0)
+    s = jax.lax.while_loop(cond, body, s)
+    return s.z, s.F, s.steps, s.ok, s.A, s.evals
