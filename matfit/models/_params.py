@@ -1,12 +1,24 @@
-"""Parameter conversion and validation shared by the models."""
+"""Parameter conversion and validation shared by the models.
+
+Validation runs on concrete values only. Inside ``jax.jit``/``grad``/``vmap`` the arguments are
+tracers: their shapes are still checked, their values are not (a traced function cannot raise
+on data). Direction and random-number values are checked on the outermost model call only:
+composite models (``Layered``, ``Blend``, ...) pass masked, possibly non-unit directions to
+their components, and those inner calls are not the user's input.
+"""
 
 from __future__ import annotations
+
+import sys
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ..errors import ParameterError
+
+#: Largest accepted deviation ``|norm(w) - 1|`` of a direction (at least 16 ulp of its dtype).
+UNIT_TOL = 1e-4
 
 
 def as_param(x):
@@ -22,19 +34,31 @@ def as_channels(x):
     return jnp.atleast_1d(as_param(x))
 
 
+def _real_dtype(where, x):
+    """Raise unless ``x`` holds real numbers (integer or floating; not bool, complex, text, objects)."""
+    dt = getattr(x, "dtype", None)
+    if dt is None:
+        try:
+            dt = np.asarray(x).dtype
+        except Exception:  # ragged nested sequences
+            raise ParameterError(f"{where} must be real numbers, found a {type(x).__name__} "
+                                 "that is not a rectangular array") from None
+    dt = np.dtype(dt)
+    if dt.kind not in "iuf":
+        raise ParameterError(f"{where} must be real numbers (integer or floating dtype), found dtype {dt}")
+
+
 def check_range(owner, name, x, lo=None, hi=None, lo_open=False, hi_open=False):
-    """Raise :class:`ParameterError` if a concrete ``x`` leaves [lo, hi] or is not finite.
+    """Raise :class:`ParameterError` if a concrete ``x`` is not real, leaves [lo, hi] or is not finite.
 
     Traced values (inside ``jit``/``grad``) are not checked: validation happens where the values
     are known, at construction from concrete numbers.
     """
     if x is None or isinstance(x, jax.core.Tracer):
         return
-    try:
-        a = np.asarray(x, dtype=float)
-    except Exception:  # pragma: no cover - exotic array types
-        return
     where = f"{owner}: parameter {name!r}"
+    _real_dtype(where, x)
+    a = np.asarray(x, dtype=float)
     if not np.all(np.isfinite(a)):
         raise ParameterError(f"{where} must be finite, found {a.ravel()[~np.isfinite(a.ravel())][:3]}")
     if lo is not None:
@@ -50,19 +74,74 @@ def check_range(owner, name, x, lo=None, hi=None, lo_open=False, hi_open=False):
 
 
 def check_choice(owner, name, value, choices):
-    if value not in choices:
+    if not isinstance(value, str) or value not in choices:
         raise ParameterError(f"{owner}: {name} must be one of {list(choices)}, got {value!r}")
 
 
+def _nested_call(depth=2):
+    """True when the model method that called the check was itself called by a model method
+    (a composite model evaluating a component), rather than by user code."""
+    f = sys._getframe(depth + 1)  # the caller of the model method
+    while f is not None:
+        mod = f.f_globals.get("__name__", "")
+        if mod.startswith("matfit.models.") and f.f_code.co_name != "albedo":
+            return True
+        f = f.f_back
+    return False
+
+
+def _concrete(v):
+    """A numpy or JAX array holding values (not a tracer, not a :class:`~matfit._math.Vec3`)."""
+    return isinstance(v, np.ndarray) or (isinstance(v, jax.Array) and not isinstance(v, jax.core.Tracer))
+
+
 def check_directions(owner, **dirs):
-    """Static shape checks of direction arguments: a last axis of length 3."""
+    """Check direction arguments: arrays with a last axis of length 3 and broadcastable batch
+    shapes; on concrete values also a real dtype, finite entries and unit length
+    (``|norm - 1| <= UNIT_TOL``)."""
     for name, v in dirs.items():
+        if not hasattr(v, "shape"):
+            raise ParameterError(f"{owner}: {name} must be an array (numpy or JAX) of shape (..., 3), "
+                                 f"found {type(v).__name__}")
         shape = np.shape(v)
         if len(shape) == 0 or shape[-1] != 3:
             raise ParameterError(f"{owner}: {name} must have shape (..., 3), found {shape}")
+        _real_dtype(f"{owner}: {name}", v)
+    if len(dirs) > 1:
+        try:
+            np.broadcast_shapes(*(np.shape(v)[:-1] for v in dirs.values()))
+        except ValueError:
+            shapes = ", ".join(f"{k} {np.shape(v)}" for k, v in dirs.items())
+            raise ParameterError(f"{owner}: direction batch shapes do not broadcast: {shapes}") from None
+    concrete = {k: v for k, v in dirs.items() if _concrete(v)}
+    if not concrete or _nested_call():
+        return
+    for name, v in concrete.items():
+        a = np.asarray(v)
+        if not np.all(np.isfinite(a)):
+            i = tuple(int(j) for j in np.argwhere(~np.isfinite(a))[0])
+            raise ParameterError(f"{owner}: {name} must be finite, found {a[i]} at index {i}")
+        norm = np.linalg.norm(a.astype(float), axis=-1)
+        tol = max(UNIT_TOL, 16 * float(np.finfo(a.dtype).eps)) if a.dtype.kind == "f" else UNIT_TOL
+        dev = np.abs(norm - 1.0)
+        if np.any(dev > tol):
+            i = np.unravel_index(int(np.argmax(dev)), norm.shape)
+            raise ParameterError(f"{owner}: {name} must be unit vectors (|norm - 1| <= {tol:g}), found norm "
+                                 f"{float(norm[i]):.6g} at index {tuple(int(j) for j in i)} "
+                                 f"({int((dev > tol).sum())} of {norm.size} off)")
 
 
 def check_u(owner, u, n):
+    if not hasattr(u, "shape"):
+        raise ParameterError(f"{owner}: u must be an array (numpy or JAX) of shape (..., {n}), found {type(u).__name__}")
     shape = np.shape(u)
     if len(shape) == 0 or shape[-1] < n:
         raise ParameterError(f"{owner}: u must have shape (..., {n}) (uniform numbers in [0, 1)), found {shape}")
+    _real_dtype(f"{owner}: u", u)
+    if not _concrete(u) or _nested_call():
+        return
+    a = np.asarray(u)
+    bad = ~((a >= 0) & (a <= 1))  # NaN is bad too
+    if np.any(bad):
+        i = tuple(int(j) for j in np.argwhere(bad)[0])
+        raise ParameterError(f"{owner}: u must be uniform numbers in [0, 1), found {a[i]} at index {i}")
