@@ -22,7 +22,7 @@ from ..table import Table
 from .diagnostics import diagnose
 from .lm import column_groups, jacobian, lm_fd
 from .losses import check_loss, residuals
-from .params import Parametrization, get_family
+from .params import Parametrization, check_solver_options
 
 METHODS = ("lm", "gn", "dogleg", "bfgs", "lbfgs", "jaxopt_lm", "lm_fd")
 
@@ -268,7 +268,9 @@ def fit(table, model="plastic", method="lm", loss="l2", robust=None, robust_scal
     if method not in METHODS:
         raise ParameterError(f"fit: method must be one of {list(METHODS)}, got {method!r}")
     check_loss(loss, robust)
-    get_family(model)
+    check_solver_options("fit", starts=starts, max_steps=max_steps, rtol=rtol, atol=atol, robust_scale=robust_scale,
+                         dtype=dtype)
+    Parametrization(model, table.n_channels, fixed, tied).check_theta("fit: init", {} if init is None else init)
     C = table.n_channels
     fixed_items = tuple(sorted((k, tuple(np.atleast_1d(np.asarray(v, float)).tolist())) for k, v in (fixed or {}).items()))
     par, run, jac = _solver(model, C, fixed_items, tuple(tied), method, loss, robust, float(robust_scale),
@@ -332,9 +334,19 @@ def fit_batch(tables, model="plastic", method="lm", loss="l2", fixed=None, tied=
     Returns ``(values (B, p), objective (B,), labels)``; every table gets its own data-driven
     start (``starts`` per table).
     """
+    if isinstance(tables, Table) or not hasattr(tables, "__len__"):
+        raise ParameterError(f"fit_batch: tables must be a sequence of matfit.Table, got {type(tables).__name__}")
     if len(tables) == 0:
         raise ParameterError("fit_batch: no tables given")
+    for i, t in enumerate(tables):
+        if not isinstance(t, Table):
+            raise ParameterError(f"fit_batch: table {i} must be a matfit.Table, got {type(t).__name__}")
+    if method not in METHODS:
+        raise ParameterError(f"fit_batch: method must be one of {list(METHODS)}, got {method!r}")
+    check_loss(loss, None)
+    check_solver_options("fit_batch", starts=starts, max_steps=max_steps, rtol=rtol, atol=atol, dtype=dtype)
     t0 = tables[0]
+    Parametrization(model, t0.n_channels, fixed, tied)
     for i, t in enumerate(tables):
         if len(t) != len(t0) or t.n_channels != t0.n_channels:
             raise ParameterError(f"fit_batch: table {i} has shape ({len(t)}, {t.n_channels}), expected ({len(t0)}, {t0.n_channels})")

@@ -26,7 +26,9 @@ References
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
+import numpy as np
 
 from .._math import safe_sqrt
 from ..errors import ParameterError
@@ -56,6 +58,17 @@ def residuals(pred, values, weight, cos_i, loss="l2", robust=None, scale=1.0):
     >>> float(r[0, 0])
     2.0
     """
+    check_loss(loss, robust)
+    shapes = {"pred": jnp.shape(pred), "values": jnp.shape(values), "weight": jnp.shape(weight),
+              "cos_i": jnp.shape(cos_i) + (1,)}
+    try:
+        jnp.broadcast_shapes(*shapes.values())
+    except ValueError:
+        raise ParameterError("residuals: shapes do not broadcast: " + ", ".join(
+            f"{k} {v if k != 'cos_i' else v[:-1]}" for k, v in shapes.items())) from None
+    if robust is not None and not isinstance(scale, jax.core.Tracer) and not (np.all(np.isfinite(scale))
+                                                                           and np.all(np.asarray(scale) > 0)):
+        raise ParameterError(f"residuals: scale must be finite and > 0 for robust={robust!r}, got {scale!r}")
     sw = safe_sqrt(weight)
     c = cos_i[..., None]
     if loss == "l2":

@@ -9,6 +9,7 @@ tied across channels (``tied=("eta",)``: one value shared by all channels).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Callable
 
@@ -103,6 +104,35 @@ def get_family(name) -> Family:
     return FAMILIES[name]
 
 
+def _count(owner, name, v, lo):
+    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+        raise ParameterError(f"{owner}: {name} must be an integer >= {lo}, got {v!r}")
+
+
+def _real(owner, name, v, positive=False):
+    ok = not isinstance(v, bool) and isinstance(v, (int, float, np.integer, np.floating)) and np.isfinite(v)
+    if not ok or (v <= 0 if positive else v < 0):
+        raise ParameterError(f"{owner}: {name} must be a finite number {'> 0' if positive else '>= 0'}, got {v!r}")
+
+
+def check_solver_options(owner, *, starts=1, max_steps=1, rtol=0.0, atol=0.0, robust_scale=1.0, dtype=None):
+    """Validate the solver options shared by :func:`~matfit.fitting.fit` and
+    :func:`~matfit.fitting.fit_batch`: counts are integers >= 1, tolerances finite and >= 0,
+    ``robust_scale`` finite and > 0, ``dtype`` None or a floating dtype."""
+    _count(owner, "starts", starts, 1)
+    _count(owner, "max_steps", max_steps, 1)
+    _real(owner, "rtol", rtol)
+    _real(owner, "atol", atol)
+    _real(owner, "robust_scale", robust_scale, positive=True)
+    if dtype is not None:
+        try:
+            dt = np.dtype(dtype)
+        except TypeError:
+            dt = None
+        if dt is None or dt.kind != "f" or dt.itemsize < 4:
+            raise ParameterError(f"{owner}: dtype must be None, float32 or float64, got {dtype!r}")
+
+
 class Parametrization:
     """Flattening of a family's free parameters into one unconstrained vector ``z``.
 
@@ -125,25 +155,64 @@ class Parametrization:
     """
 
     def __init__(self, family, channels, fixed=None, tied=()):
+        if not isinstance(family, (str, Family)):
+            raise ParameterError(f"model must be a family name (str) or a Family, got {type(family).__name__}")
         self.family = get_family(family) if isinstance(family, str) else family
+        if isinstance(channels, bool) or not isinstance(channels, (int, np.integer)) or channels < 1:
+            raise ParameterError(f"channels must be a positive integer, got {channels!r}")
         self.channels = int(channels)
+        if fixed is not None and not isinstance(fixed, Mapping):
+            raise ParameterError(f"fixed must be a dict of parameter values, got {type(fixed).__name__}")
+        if isinstance(tied, str):
+            raise ParameterError(f"tied must be a sequence of parameter names, got the string {tied!r} "
+                                 f"(write tied=({tied!r},))")
         self.fixed = dict(fixed or {})
         self.tied = tuple(tied)
         names = {p.name for p in self.family.params}
         for n in list(self.fixed) + list(self.tied):
             if n not in names:
                 raise ParameterError(f"family {self.family.name!r} has no parameter {n!r}; it has {sorted(names)}")
-        for n, v in self.fixed.items():
-            p = self._param(n)
-            a = np.asarray(v, float)
-            if np.any(a < p.lower) or np.any(a > p.upper):
-                raise ParameterError(f"fixed {n}={v} is outside its range [{p.lower}, {p.upper}]")
+        self.fixed = {n: self.check_value("fixed", n, v) for n, v in self.fixed.items()}
         self.free = [p for p in self.family.params if p.name not in self.fixed]
         self.sizes = [self._size(p) for p in self.free]
         self.size = int(sum(self.sizes))
 
     def _param(self, name):
         return next(p for p in self.family.params if p.name == name)
+
+    def check_value(self, what, name, v):
+        """Validate a value given for parameter ``name`` (``what``: "fixed", "init", ...): real,
+        finite, inside the parameter's range, and a scalar or (per-channel parameters) ``C``
+        values. Returns it as a float array."""
+        p = self._param(name)
+        where = f"{what} {name}={v!r}"
+        try:
+            a = np.asarray(v)
+        except Exception:  # ragged sequences
+            raise ParameterError(f"{where}: expected a number or an array of numbers") from None
+        if a.dtype.kind not in "iuf":
+            raise ParameterError(f"{where}: expected real numbers, found dtype {a.dtype}")
+        a = a.astype(float)
+        if not np.all(np.isfinite(a)):
+            raise ParameterError(f"{where}: expected finite values")
+        if np.any(a < p.lower) or np.any(a > p.upper):
+            raise ParameterError(f"{where} is outside its range [{p.lower}, {p.upper}]")
+        sizes = (1, self.channels) if p.per_channel else (1,)
+        if a.ndim > 1 or a.size not in sizes:
+            want = f"a scalar or {self.channels} values (one per channel)" if p.per_channel else "a scalar"
+            raise ParameterError(f"{where}: expected {want}, found shape {a.shape}")
+        return v
+
+    def check_theta(self, what, theta):
+        """Validate a dict of values for free parameters (e.g. ``fit(init=...)``)."""
+        if not isinstance(theta, Mapping):
+            raise ParameterError(f"{what} must be a dict of parameter values, got {type(theta).__name__}")
+        free = [p.name for p in self.free]
+        for n, v in theta.items():
+            if n not in free:
+                why = "is fixed" if n in self.fixed else f"is not a parameter of family {self.family.name!r}"
+                raise ParameterError(f"{what}: {n!r} {why}; the free parameters are {free}")
+            self.check_value(what, n, v)
 
     def _size(self, p):
         return self.channels if (p.per_channel and p.name not in self.tied) else 1

@@ -109,7 +109,11 @@ def robust_fit(table, model, init=None, fixed=None, tied=(), **fit_kwargs):
     guess landing in a poor basin (e.g. a conductor's ``k`` at its bound when a sparse table makes
     the peak look wide).
     """
+    if not isinstance(table, Table):
+        raise ParameterError(f"robust_fit: table must be a matfit.Table, got {type(table).__name__}")
     par = Parametrization(model, table.n_channels, fixed, tied)
+    if init is not None:
+        par.check_theta("robust_fit: init", init)
     first = dict(init) if init is not None else initial_guess(table, par)
     eta = 1.0 if model.startswith("conductor") else 1.5
     second = {p.name: GENERIC_INIT.get(p.name, eta if p.name == "eta" else first.get(p.name)) for p in par.free}
