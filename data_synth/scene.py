@@ -185,14 +185,16 @@ class Scene:
 
 
 def resolve_scene_path(path):
-    """``path`` itself if it exists, else a shipped scene ``data_synth/scenes/<path>[.toml]``."""
+    """``path`` itself if it exists, else a shipped scene ``data_synth/scenes/<path>[.toml]``; else
+    :class:`FileNotFoundError` naming the path and the shipped scenes."""
     p = Path(path)
     if p.exists():
         return p
     for cand in (SCENE_DIR / p.name, SCENE_DIR / (p.name + ".toml")):
         if cand.exists():
             return cand
-    return p
+    names = ", ".join(q.stem for q in shipped_scenes())
+    raise FileNotFoundError(f"{os.fspath(path)}: no such scene file, nor a shipped scene of that name ({names})")
 
 
 def shipped_scenes():

@@ -205,6 +205,16 @@ def _positive_int(s):
     return v
 
 
+def _seed(s):
+    try:
+        v = int(s)
+    except ValueError:
+        v = -1
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer seed, got {s!r}")
+    return v
+
+
 def _fraction(s):
     try:
         v = float(s)
@@ -226,7 +236,7 @@ def build_parser():
     sy = sub.add_parser("synth", help="render a synthetic measurement from a scene TOML file")
     sy.add_argument("scene", help="scene file (or the name of a shipped scene, e.g. demo)")
     sy.add_argument("-o", "--output", required=True, help="output table (.npz or .csv)")
-    sy.add_argument("--seed", type=int, default=None, help="override the scene's seed")
+    sy.add_argument("--seed", type=_seed, default=None, help="override the scene's seed")
     sy.set_defaults(func=_cmd_synth)
     inf = sub.add_parser("info", help="summarize a table or measured file (.npz .csv .binary .bsdf .alta)")
     inf.add_argument("table", help="file to summarize")
@@ -249,7 +259,7 @@ def build_parser():
     fi.add_argument("--max-steps", type=_positive_int, default=256, help="solver steps per start (default 256)")
     fi.add_argument("--mcmc-steps", type=_positive_int, default=4000,
                     help="cap on MCMC steps, burn-in included (default 4000; min 100)")
-    fi.add_argument("--seed", type=int, default=0, help="seed of starts, subsample and sampler (default 0)")
+    fi.add_argument("--seed", type=_seed, default=0, help="seed of starts, subsample and sampler (default 0)")
     fi.set_defaults(func=_cmd_fit)
 
     co = sub.add_parser("compare", help="compare model families on a hold-out split")
@@ -264,7 +274,7 @@ def build_parser():
     co.add_argument("--fixed", nargs="+", action="extend", default=[], metavar="NAME=VALUE", help="as for fit (families that have it)")
     co.add_argument("--subsample", type=_positive_int, default=None, metavar="N", help="use N random valid rows")
     co.add_argument("--starts", type=_positive_int, default=4, help="number of starts (default 4)")
-    co.add_argument("--seed", type=int, default=0, help="seed of the split (default 0)")
+    co.add_argument("--seed", type=_seed, default=0, help="seed of the split (default 0)")
     co.add_argument("--json", default=None, metavar="FILE", help="also write the comparison as JSON")
     co.set_defaults(func=_cmd_compare)
     return p

@@ -19,6 +19,7 @@ from __future__ import annotations
 import os
 
 from .._dataerr import data_error
+from ..errors import ParameterError
 from ..table import Table
 from .alta import AltaData, read_alta
 from .merl import MerlBRDF, read_merl, write_merl
@@ -50,6 +51,8 @@ def load(path, *, return_native: bool = False, **options):
 
 def save(path, table: Table) -> None:
     """Write a Table as .npz or .csv, by extension."""
+    if not isinstance(table, Table):
+        raise ParameterError(f"save: table must be a matfit.Table, got {type(table).__name__} (call save(path, table))")
     ext = os.path.splitext(os.fspath(path))[1].lower()
     if ext == ".npz":
         table.save_npz(path)
