@@ -368,7 +368,14 @@ def fit_batch(tables, model="plastic", method="lm", loss="l2", fixed=None, tied=
     z, obj = z[:n], obj[:n]
     best = jnp.argmin(obj, axis=1)
     zb = jnp.take_along_axis(z, best[:, None, None], axis=1)[:, 0]
-    return np.asarray(par.theta_vector(zb)), np.asarray(jnp.min(obj, axis=1)), par.labels
+    values, objective = np.asarray(par.theta_vector(zb)), np.asarray(jnp.min(obj, axis=1))
+    bad = ~(np.isfinite(values).all(axis=1) & np.isfinite(objective))
+    if bad.any():
+        idx = np.flatnonzero(bad)
+        raise FitError(f"fit_batch: {idx.size} of {len(tables)} tables ended with non-finite parameters or objective "
+                       f"(tables {idx[:10].tolist()}{' ...' if idx.size > 10 else ''}); fit them one by one with fit() "
+                       "to see why")
+    return values, objective, par.labels
 
 
 @functools.lru_cache(maxsize=16)
