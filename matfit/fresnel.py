@@ -106,8 +106,15 @@ def fresnel_conductor(cos_theta_i, eta, k):
     k = jnp.asarray(k)
     cos2 = c * c
     sin2 = 1 - cos2
-    t0 = sq(eta) - sq(k) - sin2
-    a2b2 = safe_sqrt(sq(t0) + 4 * sq(eta) * sq(k))
+    # eta^2 - k^2 - sin^2 written as (eta^2 - k^2 - 1) + cos^2: exact for an index-matched
+    # surface (eta = 1, k = 0, where F must be exactly 0) and without cancellation near it.
+    t0 = (sq(eta) - sq(k) - 1) + cos2
+    # a^2 + b^2 = hypot(t0, 2 eta k), scaled so that t0^2 cannot underflow (float32, tiny cos)
+    u = 2 * eta * k
+    big = jnp.maximum(jnp.abs(t0), jnp.abs(u))
+    pos = big > 0
+    big_s = jnp.where(pos, big, 1)
+    a2b2 = jnp.where(pos, big_s * jnp.sqrt(jnp.where(pos, sq(t0 / big_s) + sq(u / big_s), 1)), 0)
     a = safe_sqrt(0.5 * (a2b2 + t0))
     t1 = a2b2 + cos2
     t2 = 2 * a * c
