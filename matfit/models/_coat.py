@@ -84,6 +84,8 @@ def coat_transmittance_table(coat, order=COAT_ORDER, nodes=COAT_NODES, dtype=Non
     ratio = safe_div(d.G2(wob, wt, m, coat.masking), g1o)
     e = jnp.where(ok, (1 - fresnel_dielectric(c, coat.eta)) * ratio, 0)
     T = jnp.sum(e * wts, axis=-1)
+    # an index-matched coat (|eta - 1| < ETA_PASS) lets everything straight through, as its sampler
+    T = jnp.where(coat._passthrough(), 1.0, T)
     return mu, T
 
 
