@@ -95,7 +95,7 @@ def main(argv=None):
     par = Parametrization("conductor", 3)
     rows = []
     for dtype in (jnp.float64, jnp.float32):
-        kw = dict(model="conductor", method="lm_fd", loss="l2", starts=1, max_steps=64, dtype=dtype)
+        kw = dict(model="conductor", method="lm_fd", loss="l2", starts=1, max_steps=32, dtype=dtype)
         t0 = time.perf_counter()
         values, obj, labels = fit_batch(tables, **kw)
         first = time.perf_counter() - t0

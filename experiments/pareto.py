@@ -241,6 +241,7 @@ def plot(rows, path):
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker  # noqa: F401
 
     groups = {}
     for r in rows:
@@ -263,6 +264,8 @@ def plot(rows, path):
         ax.set_xlabel("time (s)", fontsize=7)
         ax.set_ylabel("error", fontsize=7)
         ax.tick_params(labelsize=6)
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+        ax.yaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
     for ax in np.ravel(axes)[n:]:
         ax.axis("off")
     fig.tight_layout()
@@ -272,7 +275,11 @@ def plot(rows, path):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--skip", default="", help="comma-separated knobs to skip: " + ",".join(KNOBS))
+    ap.add_argument("--plot-only", action="store_true", help="redraw pareto.png from pareto.json")
     ns = ap.parse_args(argv)
+    if ns.plot_only:
+        plot(json.loads((OUT / "pareto.json").read_text())["rows"], OUT / "pareto.png")
+        return
     rng = np.random.default_rng(0)
     rows = []
     for name, fn in KNOBS.items():
