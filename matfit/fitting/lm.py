@@ -24,11 +24,13 @@ Normal equations
     :math:`J^T r = \sum_c E_c^T K_c^T r_c`.
 
 Steps (Nielsen 1999; Madsen, Nielsen & Tingleff 2004, Alg. 3.16, with Marquardt's scaling)
-    :math:`(J^TJ + \mu\,\mathrm{diag}(J^TJ))\,\delta = -J^Tr`; the gain ratio
+    :math:`(J^TJ + \mu D)\,\delta = -J^Tr`, :math:`D` the largest diagonal of :math:`J^TJ` seen
+    so far (Moré 1978: a parameter whose sensitivity vanishes, e.g. at a bound, keeps a finite
+    damping); the gain ratio
     :math:`\rho = (F(z) - F(z+\delta)) / (\tfrac12\delta^T(\mu D\delta - J^Tr))` accepts the step
     when positive and updates :math:`\mu \leftarrow \mu\max(1/3, 1-(2\rho-1)^3)`, else
-    :math:`\mu \leftarrow \mu\nu`, :math:`\nu \leftarrow 2\nu`. The Jacobian is recomputed only
-    after an accepted step (rejected steps cost one evaluation).
+    :math:`\mu \leftarrow \mu\nu`, :math:`\nu \leftarrow 2\nu`. Every iteration is one trial step
+    and the Jacobian at the point it reached (one flat loop, fast under ``vmap``).
 
 Stopping
     ``converged`` when an accepted step changes the objective by at most
@@ -42,6 +44,8 @@ References
 - K. Levenberg, Q. Appl. Math. 2(2), 1944; D. W. Marquardt, J. SIAM 11(2), 1963.
 - H. B. Nielsen, "Damping parameter in Marquardt's method", IMM-REP-1999-05, DTU, 1999.
 - K. Madsen, H. B. Nielsen, O. Tingleff, "Methods for Non-Linear Least Squares Problems", 2004.
+- J. J. Moré, "The Levenberg-Marquardt algorithm: implementation and theory", Numerical
+  Analysis, Lecture Notes in Mathematics 630, 1978.
 - A. R. Curtis, M. J. D. Powell, J. K. Reid, "On the estimation of sparse Jacobian matrices",
   J. Inst. Maths Applics 13, 1974.
 """
@@ -112,7 +116,15 @@ def normal_equations(fn, z, args, seeds, owner, central=False, r=None):
     v = jnp.einsum("gnc,nc->cg", K, r)
     A = jnp.einsum("cgp,cgh,chq->pq", E, M, E)
     g = jnp.einsum("cgp,cg->p", E, v)
-    return 0.5 * jnp.sum(r * r), A, g, r
+    return _half_sq(r), A, g, r
+
+
+def _half_sq(r):
+    """0.5 |r|^2, summed in float64 when available (a float32 sum over millions of residuals
+    loses the digits that decide whether a step is accepted); returned in r's dtype."""
+    acc = jnp.promote_types(r.dtype, jnp.float64) if jax.config.read("jax_enable_x64") else r.dtype
+    rr = r.astype(acc)
+    return (0.5 * jnp.sum(rr * rr)).astype(r.dtype)
 
 
 def jacobian(fn, z, args, seeds, owner, central=None):
@@ -134,6 +146,8 @@ class _State(NamedTuple):
     evals: jax.Array
     done: jax.Array
     ok: jax.Array
+    rejects: jax.Array
+    D: jax.Array
 
 
 def lm_fd(fn, z0, args, seeds, owner, max_steps=100, rtol=1e-8, atol=1e-10, central=None, max_reject=12,
@@ -164,47 +178,37 @@ def lm_fd(fn, z0, args, seeds, owner, max_steps=100, rtol=1e-8, atol=1e-10, cent
     F0, A0, g0, r0 = normal_equations(fn, z0, args, seeds, owner, central)
     mu0 = jnp.asarray(tau, dt)  # relative to diag(J^T J) (Marquardt's scaling)
     s = _State(z0, F0, A0, g0, r0, mu0, jnp.asarray(2.0, dt), jnp.asarray(0), jnp.asarray(1 + per_jac),
-               jnp.asarray(False), jnp.asarray(False))
+               jnp.asarray(False), jnp.asarray(False), jnp.asarray(0),
+               jnp.maximum(jnp.diag(A0), jnp.finfo(dt).eps * jnp.max(jnp.diag(A0)) + jnp.finfo(dt).tiny))
     p = z0.shape[0]
     eye = jnp.eye(p, dtype=dt)
 
-    def trial(s):
-        """Rejected steps raise mu until a step decreases F (or max_reject is reached)."""
-        def cond(c):
-            _, _, _, acc, k, _, _ = c
-            return (~acc) & (k < max_reject)
-
-        def body(c):
-            mu, nu, _, _, k, _, _ = c
-            D = jnp.maximum(jnp.diag(s.A), jnp.finfo(dt).eps * jnp.max(jnp.diag(s.A)) + jnp.finfo(dt).tiny)
-            delta = jnp.linalg.solve(s.A + mu * D * eye, -s.g)
-            r_new = fn(s.z + delta, args)
-            F_new = 0.5 * jnp.sum(r_new * r_new)
-            pred = 0.5 * jnp.dot(delta, mu * D * delta - s.g)
-            rho = (s.F - F_new) / jnp.where(pred > 0, pred, jnp.inf)
-            acc = jnp.isfinite(F_new) & (F_new < s.F) & (rho > 0) & jnp.all(jnp.isfinite(delta))
-            mu_acc = mu * jnp.maximum(1 / 3, 1 - (2 * rho - 1) ** 3)
-            mu = jnp.where(acc, mu_acc, mu * nu)
-            nu = jnp.where(acc, 2.0, 2 * nu)
-            return mu, nu, delta, acc, k + 1, F_new, r_new
-
-        init = (s.mu, s.nu, jnp.zeros_like(s.z), jnp.asarray(False), jnp.asarray(0), s.F, s.r)
-        return jax.lax.while_loop(cond, body, init)
-
+    # One flat loop: every iteration is one trial step and the Jacobian at the (possibly
+    # unchanged) point. Under vmap (batched fits) a nested loop of rejections would make every
+    # member wait for the slowest one's rejections at every step; the flat loop costs at most
+    # the largest number of iterations of any member.
     def cond(s):
-        return (~s.done) & (s.steps < max_steps)
+        return (~s.done) & (s.steps < max_steps) & (s.evals < (4 * max_steps + 1) * (1 + per_jac))
 
     def body(s):
-        mu, nu, delta, acc, k, F_new, r_new = trial(s)
+        D = s.D
+        delta = jnp.linalg.solve(s.A + s.mu * D * eye, -s.g)
+        r_new = fn(s.z + delta, args)
+        F_new = _half_sq(r_new)
+        pred = 0.5 * jnp.dot(delta, s.mu * D * delta - s.g)
+        rho = (s.F - F_new) / jnp.where(pred > 0, pred, jnp.inf)
+        acc = jnp.isfinite(F_new) & (F_new < s.F) & (rho > 0) & jnp.all(jnp.isfinite(delta))
+        mu = jnp.where(acc, s.mu * jnp.maximum(1 / 3, 1 - (2 * rho - 1) ** 3), s.mu * s.nu)
+        nu = jnp.where(acc, 2.0, 2 * s.nu)
         z_new = jnp.where(acc, s.z + delta, s.z)
-        r_new = jnp.where(acc, r_new, s.r)
-        F_c, A, g, r = normal_equations(fn, z_new, args, seeds, owner, central, r=r_new)
+        F_c, A, g, r = normal_equations(fn, z_new, args, seeds, owner, central, r=jnp.where(acc, r_new, s.r))
         small_f = jnp.abs(s.F - F_c) <= rtol * jnp.abs(s.F) + atol
         small_z = jnp.all(jnp.abs(delta) <= rtol * jnp.abs(s.z) + atol)
         small_g = jnp.max(jnp.abs(g)) <= atol
-        stop = (acc & ((small_f & small_z) | small_g)) | ~acc
-        return _State(z_new, F_c, A, g, r, mu, nu, s.steps + acc.astype(s.steps.dtype),
-                      s.evals + k + per_jac, stop, stop)
+        rejects = jnp.where(acc, 0, s.rejects + 1)
+        stop = (acc & ((small_f & small_z) | small_g)) | (rejects >= max_reject)
+        return _State(z_new, F_c, A, g, r, mu, nu, s.steps + acc.astype(s.steps.dtype), s.evals + 1 + per_jac,
+                      stop, stop, rejects, jnp.maximum(s.D, jnp.diag(A)))
 
     small_g0 = jnp.max(jnp.abs(g0)) <= atol
     s = s._replace(done=small_g0, ok=small_g0)
