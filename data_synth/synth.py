@@ -15,6 +15,7 @@ and the realized gain / outlier rows. Evaluation runs in float64.
 """
 from __future__ import annotations
 
+import os
 import time
 
 import equinox as eqx
@@ -99,6 +100,9 @@ def build_geometry(scene: Scene):
 
 def synthesize(scene, counter: EvalCounter | None = None) -> Table:
     """Render a scene (a :class:`Scene` or a path to a TOML file) into a Table."""
+    if not isinstance(scene, (Scene, str, os.PathLike)):
+        raise TypeError(f"synthesize: scene must be a data_synth Scene or a path to a TOML scene file, "
+                        f"got {type(scene).__name__} (use data_synth.scene.parse_scene for a dict)")
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
     t0 = time.perf_counter()

@@ -531,6 +531,14 @@ def write_report(result, table, out_dir, posterior=None, truth=None, history=Non
     dict
         The numbers written to ``report.json``.
     """
+    from .errors import ParameterError
+    from .table import Table
+
+    if not all(hasattr(result, a) for a in ("params", "labels", "values", "stderr", "model", "objective")):
+        raise ParameterError(f"write_report: result must be a matfit FitResult (from matfit.fitting.fit), "
+                             f"got {type(result).__name__}")
+    if not isinstance(table, Table):
+        raise ParameterError(f"write_report: table must be a matfit.Table, got {type(table).__name__}")
     import matplotlib
 
     matplotlib.use("Agg")

@@ -242,6 +242,8 @@ class Table:
         """The arrays as ``jax.numpy`` arrays (``dtype`` defaults to JAX's default float)."""
         import jax.numpy as jnp
 
+        if dtype is not None and not np.issubdtype(np.dtype(dtype), np.floating):
+            raise data_error("dtype", "a floating dtype (float32 or float64)", repr(dtype))
         f = (lambda a: jnp.asarray(a, dtype=dtype)) if dtype is not None else jnp.asarray
         return TableArrays(f(self.wo), f(self.wi), f(self.values), f(self.effective_weight()),
                            jnp.asarray(self.valid))

@@ -282,3 +282,69 @@ def test_table_dtypes(field, bad, dtype):
 def test_albedo_method():
     with pytest.raises(ValueError, match=re.escape("albedo: method must be 'quadrature' or 'mc', got 'foo'")):
         Lambert(0.5).albedo(Z, method="foo")
+
+
+# --------------------------------------------------------------------------------------------
+# Gaps closed after the audit: channel counts, albedo, fresnel, Table.as_jax, synthesize, reports
+# --------------------------------------------------------------------------------------------
+def test_channel_counts_must_match():
+    from matfit.models import Blend, Lambert, RoughConductor, SmoothConductor
+
+    with pytest.raises(ParameterError, match=r"RoughConductor: the colour channels .* eta has 3, k has 2"):
+        RoughConductor(0.1, [1.5, 1.5, 1.5], [1.0, 1.0])
+    with pytest.raises(ParameterError, match=r"SmoothConductor: the colour channels"):
+        SmoothConductor([1.5, 1.5], [1.0, 1.0, 1.0])
+    with pytest.raises(ParameterError, match=r"Blend: the colour channels .* a has 3, b has 2"):
+        Blend(Lambert([0.1, 0.2, 0.3]), Lambert([0.1, 0.2]), 0.5)
+    RoughConductor(0.1, 1.5, [1.0, 2.0, 3.0])  # a scalar broadcasts
+    Blend(Lambert(0.5), Lambert([0.1, 0.2, 0.3]), 0.5)
+
+
+def test_albedo_checks_wo_method_and_n():
+    from matfit.models import Lambert
+
+    m = Lambert(0.5)
+    with pytest.raises(ParameterError, match=r"Lambert.albedo.*wo"):
+        m.albedo(np.array([0.0, 0.0, 2.0]))
+    with pytest.raises(ParameterError, match=r"Lambert.albedo: method must be"):
+        m.albedo(np.array([0.0, 0.0, 1.0]), method="exact")
+    with pytest.raises(ParameterError, match=r"Lambert.albedo: n must be a positive integer, got 0"):
+        m.albedo(np.array([0.0, 0.0, 1.0]), n=0)
+
+
+def test_fresnel_parameters():
+    from matfit.fresnel import fresnel_conductor, fresnel_dielectric, fresnel_dielectric_average
+
+    with pytest.raises(ParameterError, match=r"fresnel_dielectric: eta must be finite and > 0.0"):
+        fresnel_dielectric(0.5, -1.0)
+    with pytest.raises(ParameterError, match=r"fresnel_dielectric_average: eta must be finite and > 0.0"):
+        fresnel_dielectric_average(0.0)
+    with pytest.raises(ParameterError, match=r"fresnel_conductor: k must be finite and >= 0.0"):
+        fresnel_conductor(0.5, 1.5, -0.1)
+    with pytest.raises(ParameterError, match=r"fresnel_conductor: eta must be finite and > 0.0, found \[nan\]"):
+        fresnel_conductor(0.5, np.nan, 1.0)
+
+
+def test_table_as_jax_dtype():
+    from matfit import Table
+    from matfit.errors import DataFormatError
+
+    t = Table(wo=np.array([[0.0, 0.0, 1.0]]), wi=np.array([[0.0, 0.0, 1.0]]), values=np.ones((1, 3)))
+    with pytest.raises(DataFormatError, match=r"field 'dtype': expected a floating dtype"):
+        t.as_jax("int32")
+
+
+def test_synthesize_rejects_a_dict():
+    from data_synth.synth import synthesize
+
+    with pytest.raises(TypeError, match=r"synthesize: scene must be a data_synth Scene or a path.*got dict"):
+        synthesize({"material": {}})
+
+
+def test_write_report_rejects_non_results(tmp_path):
+    from matfit import Table
+    from matfit.report import write_report
+
+    t = Table(wo=np.array([[0.0, 0.0, 1.0]]), wi=np.array([[0.0, 0.0, 1.0]]), values=np.ones((1, 3)))
+    with pytest.raises(ParameterError, match=r"write_report: result must be a matfit FitResult.*got dict"):
+        write_report({}, t, tmp_path)

@@ -11,6 +11,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._math import dot
+from ..errors import ParameterError
+from ._params import check_directions
 
 
 class AbstractBSDF(eqx.Module):
@@ -90,7 +92,13 @@ class AbstractBSDF(eqx.Module):
         >>> round(float(e[0]), 6)
         0.5
         """
+        owner = f"{type(self).__name__}.albedo"
+        check_directions(owner, wo=wo)
         wo = jnp.asarray(wo)
+        if method not in ("quadrature", "mc"):
+            raise ParameterError(f"{owner}: method must be 'quadrature' or 'mc', got {method!r}")
+        if n is not None and not (isinstance(n, (int, np.integer)) and not isinstance(n, bool) and n > 0):
+            raise ParameterError(f"{owner}: n must be a positive integer, got {n!r}")
         if method == "mc":
             n = 2**16 if n is None else int(n)
             key = jax.random.PRNGKey(0) if key is None else key
@@ -99,8 +107,6 @@ class AbstractBSDF(eqx.Module):
             wi, weight, pdf = self.sample(wob, u)
             e = weight * self.energy_factor(wob, wi)[..., None]
             return jnp.mean(e, axis=0)
-        if method != "quadrature":
-            raise ValueError(f"albedo: method must be 'quadrature' or 'mc', got {method!r}")
         n = 96 if n is None else int(n)
         x, w = np.polynomial.legendre.leggauss(n)
         mu = np.concatenate([-0.5 * (x + 1), 0.5 * (x + 1)])

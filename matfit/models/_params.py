@@ -73,6 +73,16 @@ def check_range(owner, name, x, lo=None, hi=None, lo_open=False, hi_open=False):
             raise ParameterError(f"{where} must be {rel} {hi}, found {a[bad].ravel()[:3]}")
 
 
+def check_channels(owner, **params):
+    """Raise :class:`ParameterError` unless the parameters' colour axes (last axis) broadcast:
+    equal lengths, or 1. ``params`` are arrays or ints (a model's ``channels``)."""
+    lens = {n: (int(v) if isinstance(v, int) else (np.shape(v)[-1] if np.ndim(v) else 1)) for n, v in params.items()}
+    c = {n: k for n, k in lens.items() if k != 1}
+    if len(set(c.values())) > 1:
+        found = ", ".join(f"{n} has {k}" for n, k in lens.items())
+        raise ParameterError(f"{owner}: the colour channels (last axis) must match or be 1, found {found}")
+
+
 def check_choice(owner, name, value, choices):
     if not isinstance(value, str) or value not in choices:
         raise ParameterError(f"{owner}: {name} must be one of {list(choices)}, got {value!r}")

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 
 from .._math import safe_div
 from ._base import AbstractBSDF
-from ._params import as_param, check_directions, check_range, check_u
+from ._params import as_param, check_channels, check_directions, check_range, check_u
 from ..errors import ParameterError
 
 
@@ -49,6 +49,7 @@ class Blend(AbstractBSDF):
                     "sample consistently; blend rough-coated models, or pure delta models (SmoothConductor, SmoothDielectric)"
                 )
         check_range("Blend", "weight", weight, 0.0, 1.0)
+        check_channels("Blend", a=a.channels, b=b.channels, weight=weight)
         self.a = a
         self.b = b
         self.weight = as_param(weight)

@@ -33,7 +33,7 @@ import jax.numpy as jnp
 from .._math import COS_EPS, dot, normalize, safe_div, where_up
 from ..fresnel import fresnel_conductor
 from ._microfacet import AbstractMicrofacetBSDF
-from ._params import as_channels, check_directions, check_range, check_u
+from ._params import as_channels, check_channels, check_directions, check_range, check_u
 
 
 class RoughConductor(AbstractMicrofacetBSDF):
@@ -56,6 +56,7 @@ class RoughConductor(AbstractMicrofacetBSDF):
         self._init_microfacet("RoughConductor", alpha, alpha_y, distribution, masking, sampling)
         check_range("RoughConductor", "eta", eta, 0.0, lo_open=True)
         check_range("RoughConductor", "k", k, 0.0)
+        check_channels("RoughConductor", eta=eta, k=k)
         self.eta = eta
         self.k = k
 

@@ -22,7 +22,7 @@ import jax.numpy as jnp
 from .._math import COS_EPS
 from ..fresnel import fresnel_conductor
 from ._base import AbstractBSDF
-from ._params import as_channels, check_directions, check_range, check_u
+from ._params import as_channels, check_channels, check_directions, check_range, check_u
 
 
 class SmoothConductor(AbstractBSDF):
@@ -44,6 +44,7 @@ class SmoothConductor(AbstractBSDF):
     def __init__(self, eta, k):
         check_range("SmoothConductor", "eta", eta, 0.0, lo_open=True)
         check_range("SmoothConductor", "k", k, 0.0)
+        check_channels("SmoothConductor", eta=eta, k=k)
         self.eta = eta
         self.k = k
 
