@@ -53,18 +53,21 @@ def parse_args(argv=None):
     ap.add_argument("shared", nargs="?", default=str(REPO.parent / "shared"),
                     help="shared folder (default: ../shared relative to the repo root)")
     ap.add_argument("--materials", default=None, help="comma-separated MERL names (default: the built-in spread)")
-    ap.add_argument("--n-rows", type=int, default=4000, help="Löw-sampled rows per MERL fit table")
-    ap.add_argument("--n-cells", type=int, default=4000, help="MERL cells for the cell-uniform reading")
-    ap.add_argument("--n-rgl", type=int, default=4000,
+    ap.add_argument("--n-rows", type=int, default=1500, help="Löw-sampled rows per MERL fit table")
+    ap.add_argument("--n-cells", type=int, default=1500, help="MERL cells for the cell-uniform reading")
+    ap.add_argument("--n-rgl", type=int, default=1500,
                     help="rows per RGL fit table (= --n-rows: one compiled solver serves both)")
-    ap.add_argument("--starts", type=int, default=3)
+    ap.add_argument("--starts", type=int, default=2)
     ap.add_argument("--two-inits", action="store_true", help="also fit from a generic mid-range point")
-    ap.add_argument("--max-steps", type=int, default=80)
+    ap.add_argument("--max-steps", type=int, default=50)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--rgl", default=None, help="comma-separated RGL file stems (default: every .bsdf)")
     ap.add_argument("--skip-rgl", action="store_true")
     ap.add_argument("--skip-merl", action="store_true")
     ap.add_argument("--extra", action="store_true", help="also fit car_paint to the metallic paints / films")
     ap.add_argument("--summary", action="store_true", help="only rebuild fit_measured.md/.json from the JSON files")
+    ap.add_argument("--heldout", type=int, default=0,
+                    help="evaluate the stored MERL fits and the Löw fit on N fresh Löw-sampled rows (seed + 1)")
     ap.add_argument("--x32", action="store_true", help="float32 instead of float64")
     return ap.parse_args(argv)
 
@@ -172,7 +175,7 @@ def report(res, init, fit_table, report_table, name, title, args):
     try:
         hist = loss_history(fit_table, res.family, loss="e2", starts=args.starts, seed=args.seed,
                             max_steps=args.max_steps, init=init)
-        write_report(res, report_table, out, history=hist, title=title, max_rows=20000)
+        write_report(res, report_table, out, history=hist, title=title, max_rows=5000)
         return {"report": str(out.relative_to(REPO)), "report_seconds": time.perf_counter() - t0,
                 "history_final": [float(h[-1]) for h in hist]}
     except Exception as e:  # noqa: BLE001 - a report bug must not lose the fit
@@ -251,6 +254,49 @@ def run_merl(name, low, args, shared):
     return rec
 
 
+def model_from_params(fam, params, channels=3):
+    import jax.numpy as jnp
+
+    from matfit.fitting import get_family
+
+    f = get_family(fam)
+    full = {}
+    for p in f.params:
+        v = jnp.asarray(params[p.name], dtype=float)
+        full[p.name] = jnp.broadcast_to(jnp.atleast_1d(v), (channels,)) if p.per_channel else v
+    return f.build(full, channels)
+
+
+def heldout_merl(name, low, args):
+    """E2 (Löw sampling) of the stored fits and of the published fit on ``args.heldout`` fresh rows:
+    rows the matfit fits did not see, so that neither side is scored on its own fitting sample."""
+    import merl_surrogate  # noqa: F401 (path set in main)
+    from matfit.io.merl import read_merl
+
+    jpath = ITEMS / f"merl_{name}.json"
+    if not jpath.exists():
+        return
+    rec = json.loads(jpath.read_text())
+    if rec.get("heldout", {}).get("n") == args.heldout:
+        return
+    path = OUT / "cache" / f"{name}.binary"
+    if not path.exists():
+        merl_surrogate.write_merl(name, str(path))
+    table = low_sampled_table(read_merl(path), args.heldout, args.seed + 1)
+    ok = table.valid
+    w = table.effective_weight()[ok, 0]
+    wo, wi, y = table.wo[ok], table.wi[ok], table.values[ok]
+    ho = {"n": args.heldout, "seed": args.seed + 1,
+          "low_ct": e2_weighted(low_cooktorrance(low[name], wo, wi), y, wi[:, 2], w)}
+    for fam, d in rec.get("fits", {}).items():
+        if "params" in d:
+            ho[fam] = e2_weighted(pred_of(model_from_params(fam, d["params"]), wo, wi), y, wi[:, 2], w)
+    rec["heldout"] = ho
+    jpath.write_text(json.dumps(jsonable(rec), indent=1))
+    path.unlink()
+    print(f"[heldout] {name}: " + " ".join(f"{k} {v:.4g}" for k, v in ho.items() if k not in ("n", "seed")), flush=True)
+
+
 # ------------------------------------------------------------------ RGL
 def run_rgl(path, args):
     from matfit.io import load
@@ -304,12 +350,16 @@ def main(argv=None):
             if n not in low or n not in available:
                 sys.exit(f"fit_measured: no published Löw fit or no surrogate for MERL material {n!r}")
         T0 = time.perf_counter()
-        if not args.skip_merl:
+        if args.heldout:
+            for name in names:
+                heldout_merl(name, low, args)
+        elif not args.skip_merl:
             for name in names:
                 run_merl(name, low, args, shared)
-        if not args.skip_rgl:
+        if not args.skip_rgl and not args.heldout:
             for path in sorted((shared / "data" / "rgl").glob("*.bsdf")):
-                run_rgl(path, args)
+                if args.rgl is None or path.stem in args.rgl.split(","):
+                    run_rgl(path, args)
         print(f"fits done in {time.perf_counter() - T0:.0f} s", flush=True)
     write_summary(args)
 
@@ -355,9 +405,9 @@ def write_summary(args):
          f"**E2 (Löw)**: the metric Löw et al. fitted with (bbm `lowLog`): {args.n_rows} direction pairs with "
          "theta_i, phi_i, theta_o uniform, phi_o = 0, weighted by sin(theta_i), values looked up in the MERL table; "
          "the matfit families were fitted on exactly these rows and weights, and the published Löw Cook-Torrance E2 "
-         "fit is evaluated on the same rows. **E2 (cells)**: the unweighted mean over "
-         f"{args.n_cells} random valid MERL cells (cells crowd near the mirror direction and a third of them have "
-         "theta_d > 60 deg), for the same two fits; no fit here minimized it. "
+         "fit is evaluated on the same rows (in-sample for matfit: see the held-out table below). **E2 (cells)**: the unweighted mean over "
+         f"{args.n_cells} random valid MERL cells (cells crowd near the mirror direction: 31 % of the valid cells have theta_h < 5 deg and 23 % "
+         "theta_d > 60 deg), for the same two fits; no fit here minimized it; for the Löw fit, 1500 cells land within 15 % of the 50 000-cell value of `fit_measured_low2012.md`. "
          "Ratio = best matfit / Löw CT, E2 (Löw).", "",
          "| MERL material | " + " | ".join(f"E2 (Löw) {f}" for f in fams_m) + " | E2 (Löw) Löw CT | ratio | "
          + " | ".join(f"E2 (cells) {f}" for f in fams_m) + " | E2 (cells) Löw CT | report |",
@@ -372,6 +422,22 @@ def write_summary(args):
         L.append(f"| {r['material']} | " + " | ".join(_g(v) for v in vals) + f" | {_g(lo['e2_low_sin'])} | {_g(ratio, 2)} | "
                  + " | ".join(_g(fits.get(f, {}).get("e2_cells")) for f in fams_m)
                  + f" | {_g(lo['e2_cells'])} | {rep} |")
+    ho = [r for r in merl if "heldout" in r]
+    if ho:
+        L += ["", f"**Held out**: the same E2 (Löw) on {ho[0]['heldout']['n']} fresh Löw-sampled rows (seed "
+              f"{ho[0]['heldout']['seed']}) that no matfit fit saw. Few samples fall near the mirror direction or at grazing angles, where the "
+              "errors are large, so E2 on a 1500-row set differs from the 54 000-sample grid value of "
+              "`fit_measured_low2012.md` by up to a factor of ~4 for the Löw fit. matfit was fitted to the rows of the "
+              "table above and the Löw fit was not, so the ratio there flatters matfit (most for the sharp "
+              "highlights that few rows sample); this table is the fair comparison.", "",
+              "| MERL material | " + " | ".join(f"E2 {f}" for f in fams_m) + " | E2 Löw CT | ratio best / Löw CT |",
+              "|---|" + "---|" * (len(fams_m) + 2)]
+        for r in ho:
+            h = r["heldout"]
+            vals = [h.get(f) for f in fams_m]
+            okv = [v for v in vals if isinstance(v, float)]
+            L.append(f"| {r['material']} | " + " | ".join(_g(v) for v in vals) + f" | {_g(h['low_ct'])} | "
+                     f"{_g(min(okv) / h['low_ct'], 2) if okv else '-'} |")
     L += ["", "Sensitivity of the Löw CT numbers to the one ambiguous factor of the model form (D with 1/pi, i.e. a "
           "normalized Beckmann, against the published form without it):", "",
           "| MERL material | E2 (Löw), published form | E2 (Löw), D/pi | E2 (cells), published form | E2 (cells), D/pi |",
@@ -394,7 +460,8 @@ def write_summary(args):
                      f"{d['seconds']:.0f} |")
         L.append(f"| {r['material']} | Löw CT | {_params(r['low_ct']['params'])} | {_g(r['low_ct']['published']['e2_low_sin'])} | - | - |")
     fams_r = sorted({f for r in rgl for f in r.get("fits", {})}, key=lambda f: (f not in FAMILIES, f))
-    L += ["", "## RGL (measured, Dupuy & Jakob 2018)", "",
+    L += ["", "car_paint (`--extra`) was not run: on the shared CPUs its compilation alone did not fit the time "
+          "left.", "", "## RGL (measured, Dupuy & Jakob 2018)", "",
           f"Fitted on the file's valid rows (a random {args.n_rgl} where there are more), equal weights; E2 on the fit "
           "rows and on all valid rows. Report for the family of lowest E2.", "",
           "| RGL file | valid rows (fit / all) | " + " | ".join(f"E2 {f}" for f in fams_r) + " | best | E2 best, all rows | report |",
