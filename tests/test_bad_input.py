@@ -321,7 +321,7 @@ def test_fresnel_parameters():
         fresnel_dielectric_average(0.0)
     with pytest.raises(ParameterError, match=r"fresnel_conductor: k must be finite and >= 0.0"):
         fresnel_conductor(0.5, 1.5, -0.1)
-    with pytest.raises(ParameterError, match=r"fresnel_conductor: eta must be finite and > 0.0, found \[nan\]"):
+    with pytest.raises(ParameterError, match=r"fresnel_conductor: eta must be finite and > 0.0, found \[ *nan\]"):
         fresnel_conductor(0.5, np.nan, 1.0)
 
 
