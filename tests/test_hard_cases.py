@@ -522,7 +522,9 @@ def _check_prop(model, wo, wi, u, reciprocal=True, per_sample_energy=False, ener
     assert (f >= 0).all() and (p >= 0).all() and (sp >= 0).all() and (sw >= 0).all()
     assert ((sp > 0)[..., None] | (sw == 0)).all(), "weight != 0 on an invalid sample"
     if reciprocal:
-        np.testing.assert_allclose(f, fr, rtol=2e-3, atol=1e-30)
+        # float32: relative 2e-3, and 1e-6 1/sr absolute for values that are float32 rounding of
+        # near-zero reflectances (e.g. F ~ (eta - 1)^2 at eta = 0.99999 at grazing: 5.3e-8 vs 5.5e-8)
+        np.testing.assert_allclose(f, fr, rtol=2e-3, atol=1e-6)
     if per_sample_energy:
         # visible-normal sampling: every sample's energy weight is G2/G1 * (F or 1-F)/(lobe prob) <= 1
         assert (e <= 1 + 1e-3).all(), e.max()
