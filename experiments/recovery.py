@@ -246,6 +246,47 @@ def from_partial(family, path, R, seed, part, settings):
                 stopped_early=True)
 
 
+def refit(family, R, seed, chunk, n_starts, max_steps, part, out, log):
+    """Second pass for a family whose run stopped after its first pass: refit the tables of its
+    summary (``recovery_<family>.json``) that ended above ``chi^2/n = REFIT_CHI2`` with ``n_starts``
+    starts; writes ``recovery_<family>_refit_part<i>of<n>.json`` after every chunk (used by --merge)."""
+    summary = json.loads((out / f"recovery_{family}.json").read_text())
+    chi2 = np.asarray(summary["chi2_per_residual"])
+    redo = [int(j) for j in np.flatnonzero(~(chi2 <= REFIT_CHI2))][part[0]::part[1]]
+    C = 1 if family == "dielectric" else 3
+    wo, wi, _ = geometry_for(family)
+    _, _, tables = make_tables(family, R, np.random.default_rng(seed), C, wo, wi)
+    vals, objs, secs = [], [], []
+    for i in range(0, len(redo), chunk):
+        batch = [tables[j] for j in redo[i:i + chunk]]
+        t1 = time.perf_counter()
+        v, o, _ = fit_batch(batch + [batch[-1]] * (chunk - len(batch)), model=family, starts=n_starts,
+                            max_steps=max_steps, rtol=1e-6, atol=1e-9)
+        secs.append(time.perf_counter() - t1)
+        vals += v[:len(batch)].tolist()
+        objs += o[:len(batch)].tolist()
+        (out / f"recovery_{family}_refit_part{part[0]}of{part[1]}.json").write_text(json.dumps(
+            {"ids": redo[:len(vals)], "values": vals, "objective": objs, "starts": n_starts, "chunk_s": secs}))
+        log(f"{family} refit: {len(vals)}/{len(redo)} ({secs[-1]:.0f} s)")
+
+
+def apply_refits(family, parts, out):
+    """Replace first-pass fits by the refits of :func:`refit` where those reach a lower objective."""
+    files = sorted(out.glob(f"recovery_{family}_refit_part*of*.json"))
+    for q in files:
+        d = json.loads(q.read_text())
+        for j, v, o in zip(d["ids"], d["values"], d["objective"]):
+            for p in parts:
+                if j in p["ids"]:
+                    k = p["ids"].index(j)
+                    p["n_refit"] += 1
+                    p["refit_starts"] = d["starts"]
+                    if o < p["objective"][k]:
+                        p["values"][k], p["objective"][k] = v, o
+                        p["n_refit_improved"] += 1
+    return sum(sum(json.loads(q.read_text())["chunk_s"]) for q in files) if files else None
+
+
 def summarize(parts):
     """Statistics of one family from the raw results of its parts (see :func:`run`)."""
     r0 = parts[0]
@@ -273,7 +314,9 @@ def summarize(parts):
         "median_valid_rows": float(np.median([v for p in parts for v in p["valid_rows"]])),
         "ranges": RANGES[family], "starts": r0["starts"], "max_steps": r0["max_steps"], "chunk": r0["chunk"],
         "fit_wall_s": float(sum(chunk_s)), "first_chunk_s": chunk_s[0] if chunk_s else None,
-        "stopped_early": any(p.get("stopped_early", False) for p in parts), "R_planned": parts[0].get("R_planned"),
+        "stopped_early": any(p.get("stopped_early", False) for p in parts),
+        "refit_separately": any(p.get("refit_separately", False) for p in parts),
+        "refit_wall_s": parts[0].get("refit_wall_s"), "R_planned": parts[0].get("R_planned"),
         "later_chunk_median_s": float(np.median(chunk_s[1:])) if len(chunk_s) > 1 else None,
         "fisher_wall_s": float(sum(p["fisher_wall_s"] for p in parts)),
         "fraction_within_2pct": {lab: float(within[:, i].mean()) for i, lab in enumerate(labels)},
@@ -310,13 +353,17 @@ def write_md(res, path):
         rel = np.abs(np.asarray(r["values"]) - np.asarray(r["truths"])) / np.abs(np.asarray(r["truths"]))
         stop = (f" (of {r['R_planned']} planned: the run was stopped at the session's time limit; these are the "
                 f"tables it had finished, first pass only)" if r.get("stopped_early") else "")
+        if r.get("refit_separately"):
+            stop = (f" (the run was stopped after its first pass; {r['n_refit']} of its tables above chi^2/n = "
+                    f"{REFIT_CHI2} were then refitted with {r['refit_starts']} starts by a separate `--refit` run, "
+                    f"{r['refit_wall_s']:.0f} s summed over its processes; {r['n_refit_improved']} improved)")
         L += [f"## {r['family']}", "",
               f"R = {r['R']}{stop} random truths ({ranges}; per-channel parameters drawn per channel). Geometry: {gdesc}; "
               f"{r['n_rows']} rows above the horizon, median {r['median_valid_rows']:.0f} kept (dynamic range 1e5). "
               f"Fit: `fit_batch`, LM, {r['starts']} start(s), max {r['max_steps']} steps, chunks of {r['chunk']} tables"
               + (f"; {r['n_refit']} tables ended above chi^2/n = {r['refit_chi2']} and were refitted with "
                  f"{r['refit_starts']} starts ({r['n_refit_improved']} improved). "
-                 if "n_refit" in r and not r.get("stopped_early") else ". ")
+                 if "n_refit" in r and not r.get("stopped_early") and not r.get("refit_separately") else ". ")
               + 
               (f"Wall: {r['fit_wall_s']:.0f} s fitting (first chunk incl. compilation {r['first_chunk_s']:.0f} s{later}), "
                if r["first_chunk_s"] is not None else "Wall: see the run log; ")
@@ -346,6 +393,8 @@ def main():
     ap.add_argument("--from-partial", action="store_true",
                     help="with --merge: also summarize the tables that stopped runs of --families finished "
                          "(their --starts/--max-steps/--chunk must be given as they ran)")
+    ap.add_argument("--refit", action="store_true",
+                    help="second pass only: refit (--part i/n) the tables of recovery_<family>.json above REFIT_CHI2")
     ap.add_argument("--merge", action="store_true",
                     help="only merge the per-family results recovery_<family>.json into recovery.md/.json")
     args = ap.parse_args()
@@ -357,6 +406,11 @@ def main():
         print(f"[{time.perf_counter() - t0:7.1f} s] {msg}", flush=True)
 
     i, n = (int(x) for x in args.part.split("/"))
+    if args.refit:
+        for fam in args.families:
+            refit(fam, args.reps, args.seed + list(RANGES).index(fam), args.chunk, args.starts or 6, args.max_steps,
+                  (i, n), out, log)
+        return
     if not args.merge:  # families run one after the other here, or in parallel processes
         for fam in args.families:
             seed = args.seed + list(RANGES).index(fam)
@@ -379,6 +433,11 @@ def main():
                 log(f"{fam}: {len(parts[-1]['ids'])} finished tables read from {q.name}")
         if parts and (sum(len(q["ids"]) for q in parts) == args.reps or (args.merge and args.from_partial)):
             parts[0]["R_planned"] = args.reps
+            refit_s = apply_refits(fam, parts, out)
+            if refit_s is not None:
+                for p in parts:
+                    p["refit_separately"] = True
+                parts[0]["refit_wall_s"] = refit_s
             (out / f"recovery_{fam}.json").write_text(json.dumps(summarize(parts), indent=1))
     res = [json.loads((out / f"recovery_{f}.json").read_text()) for f in RANGES if (out / f"recovery_{f}.json").exists()]
     (out / "recovery.json").write_text(json.dumps(res, indent=1))
