@@ -249,10 +249,11 @@ def from_partial(family, path, R, seed, part, settings):
 def refit(family, R, seed, chunk, n_starts, max_steps, part, out, log):
     """Second pass for a family whose run stopped after its first pass: refit the tables of its
     summary (``recovery_<family>.json``) that ended above ``chi^2/n = REFIT_CHI2`` with ``n_starts``
-    starts; writes ``recovery_<family>_refit_part<i>of<n>.json`` after every chunk (used by --merge)."""
+    starts; writes ``recovery_<family>_refit<N>_part<i>of<n>.json`` after every chunk (used by --merge)."""
     summary = json.loads((out / f"recovery_{family}.json").read_text())
     chi2 = np.asarray(summary["chi2_per_residual"])
-    redo = [int(j) for j in np.flatnonzero(~(chi2 <= REFIT_CHI2))][part[0]::part[1]]
+    redo = [int(j) for j in np.flatnonzero(~(chi2 <= REFIT_CHI2))]
+    n_sel, redo = len(redo), redo[part[0]::part[1]]
     C = 1 if family == "dielectric" else 3
     wo, wi, _ = geometry_for(family)
     _, _, tables = make_tables(family, R, np.random.default_rng(seed), C, wo, wi)
@@ -265,14 +266,16 @@ def refit(family, R, seed, chunk, n_starts, max_steps, part, out, log):
         secs.append(time.perf_counter() - t1)
         vals += v[:len(batch)].tolist()
         objs += o[:len(batch)].tolist()
-        (out / f"recovery_{family}_refit_part{part[0]}of{part[1]}.json").write_text(json.dumps(
+        # the name carries the number of tables selected, so a later --refit (on the tables still above
+        # REFIT_CHI2 after merging) does not overwrite the refits of an earlier one
+        (out / f"recovery_{family}_refit{n_sel}_part{part[0]}of{part[1]}.json").write_text(json.dumps(
             {"ids": redo[:len(vals)], "values": vals, "objective": objs, "starts": n_starts, "chunk_s": secs}))
         log(f"{family} refit: {len(vals)}/{len(redo)} ({secs[-1]:.0f} s)")
 
 
 def apply_refits(family, parts, out):
     """Replace first-pass fits by the refits of :func:`refit` where those reach a lower objective."""
-    files = sorted(out.glob(f"recovery_{family}_refit_part*of*.json"))
+    files = sorted(out.glob(f"recovery_{family}_refit*_part*of*.json"))
     for q in files:
         d = json.loads(q.read_text())
         for j, v, o in zip(d["ids"], d["values"], d["objective"]):
