@@ -15,28 +15,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._math import safe_div, safe_sqrt, sq
+from ._check import check_range
 from .errors import ParameterError
-
-
-def _check(owner, name, x, lo, strict):
-    """Raise on concrete ``x`` below ``lo`` (or at it when ``strict``) or non-finite; tracers pass."""
-    import jax
-
-    if isinstance(x, jax.core.Tracer):
-        return
-    a = np.asarray(x)
-    if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)):
-        raise ParameterError(f"{owner}: {name} must be real numbers, found dtype {a.dtype}")
-    bad = ~np.isfinite(a) | ((a <= lo) if strict else (a < lo))
-    if bad.any():
-        raise ParameterError(f"{owner}: {name} must be finite and {'>' if strict else '>='} {lo}, found {a[bad].ravel()[:3]}")
-
-__all__ = [
-    "fresnel_dielectric",
-    "fresnel_conductor",
-    "fresnel_schlick",
-    "fresnel_dielectric_average",
-]
 
 
 def fresnel_dielectric(cos_theta_i, eta):
@@ -68,7 +48,7 @@ def fresnel_dielectric(cos_theta_i, eta):
     >>> float(fresnel_dielectric(1.0, 1.5))  # normal incidence, ((1.5-1)/(1.5+1))**2
     0.04...
     """
-    _check("fresnel_dielectric", "eta", eta, 0.0, True)
+    check_range("fresnel_dielectric", "eta", eta, 0.0, lo_open=True)
     c = jnp.clip(jnp.asarray(cos_theta_i), -1, 1)
     eta = jnp.asarray(eta)
     inside = c < 0
@@ -117,8 +97,8 @@ def fresnel_conductor(cos_theta_i, eta, k):
     >>> gold.shape
     (3,)
     """
-    _check("fresnel_conductor", "eta", eta, 0.0, True)
-    _check("fresnel_conductor", "k", k, 0.0, False)
+    check_range("fresnel_conductor", "eta", eta, 0.0, lo_open=True)
+    check_range("fresnel_conductor", "k", k, 0.0)
     c = jnp.clip(jnp.abs(jnp.asarray(cos_theta_i)), 0, 1)
     eta = jnp.asarray(eta)
     k = jnp.asarray(k)
@@ -188,7 +168,7 @@ def fresnel_dielectric_average(eta, n=64):
     >>> round(float(fresnel_dielectric_average(1.5)), 4)
     0.0918
     """
-    _check("fresnel_dielectric_average", "eta", eta, 0.0, True)
+    check_range("fresnel_dielectric_average", "eta", eta, 0.0, lo_open=True)
     if not (isinstance(n, (int, np.integer)) and n > 0):
         raise ParameterError(f"fresnel_dielectric_average: n must be a positive integer, got {n!r}")
     eta = jnp.asarray(eta)

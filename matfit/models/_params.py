@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._check import _real_dtype, check_range  # noqa: F401  (re-exported for the models)
 from ..errors import ParameterError
 
 #: Largest accepted deviation ``|norm(w) - 1|`` of a direction (at least 16 ulp of its dtype).
@@ -32,45 +33,6 @@ def as_param(x):
 def as_channels(x):
     """A floating JAX array with at least one axis: the last axis holds the colour channels."""
     return jnp.atleast_1d(as_param(x))
-
-
-def _real_dtype(where, x):
-    """Raise unless ``x`` holds real numbers (integer or floating; not bool, complex, text, objects)."""
-    dt = getattr(x, "dtype", None)
-    if dt is None:
-        try:
-            dt = np.asarray(x).dtype
-        except Exception:  # ragged nested sequences
-            raise ParameterError(f"{where} must be real numbers, found a {type(x).__name__} "
-                                 "that is not a rectangular array") from None
-    dt = np.dtype(dt)
-    if dt.kind not in "iuf":
-        raise ParameterError(f"{where} must be real numbers (integer or floating dtype), found dtype {dt}")
-
-
-def check_range(owner, name, x, lo=None, hi=None, lo_open=False, hi_open=False):
-    """Raise :class:`ParameterError` if a concrete ``x`` is not real, leaves [lo, hi] or is not finite.
-
-    Traced values (inside ``jit``/``grad``) are not checked: validation happens where the values
-    are known, at construction from concrete numbers.
-    """
-    if x is None or isinstance(x, jax.core.Tracer):
-        return
-    where = f"{owner}: parameter {name!r}"
-    _real_dtype(where, x)
-    a = np.asarray(x, dtype=float)
-    if not np.all(np.isfinite(a)):
-        raise ParameterError(f"{where} must be finite, found {a.ravel()[~np.isfinite(a.ravel())][:3]}")
-    if lo is not None:
-        bad = a <= lo if lo_open else a < lo
-        if np.any(bad):
-            rel = ">" if lo_open else ">="
-            raise ParameterError(f"{where} must be {rel} {lo}, found {a[bad].ravel()[:3]}")
-    if hi is not None:
-        bad = a >= hi if hi_open else a > hi
-        if np.any(bad):
-            rel = "<" if hi_open else "<="
-            raise ParameterError(f"{where} must be {rel} {hi}, found {a[bad].ravel()[:3]}")
 
 
 def check_channels(owner, **params):
