@@ -74,6 +74,18 @@ def rel_err(a, ref):
     return float(np.max(np.abs(a[m] - ref[m]) / np.abs(ref[m])))
 
 
+def sweep(run, ref_setting, settings, knob, case, label):
+    """Rows of one quadrature knob: ``run(*setting) -> (out, compile_s, time_s)`` at each setting,
+    its relative error against ``run(*ref_setting)``."""
+    ref, _, _ = run(*ref_setting)
+    rows = []
+    for setting in settings:
+        out, c, t = run(*setting)
+        rows.append({"knob": knob, "case": case, "setting": label(*setting), "error": rel_err(out, ref), "time_s": t,
+                     "compile_s": c})
+    return rows
+
+
 def knob_dtype(rng):
     from matfit.models import Plastic, RoughConductor
 
@@ -103,13 +115,8 @@ def knob_coat(rng):
         f = jax.jit(lambda wo, wi, m: m._eval_t(wo, wi, coat_transmittance_table(m.coat, order=order, nodes=nodes)))
         return timed(f, wo, wi, m)
 
-    ref, _, _ = run(32, 96)
-    rows = []
-    for order, nodes in ((4, 8), (6, 12), (8, 16), (12, 24), (16, 48), (24, 64)):
-        out, c, t = run(order, nodes)
-        rows.append({"knob": "coat quadrature", "case": "plastic alpha 0.3", "setting": f"{order}x{order}, {nodes} nodes",
-                     "error": rel_err(out, ref), "time_s": t, "compile_s": c})
-    return rows
+    return sweep(run, (32, 96), ((4, 8), (6, 12), (8, 16), (12, 24), (16, 48), (24, 64)), "coat quadrature",
+                 "plastic alpha 0.3", lambda order, nodes: f"{order}x{order}, {nodes} nodes")
 
 
 def knob_stochastic(rng):
@@ -142,13 +149,8 @@ def knob_aperture(rng):
         f = jax.jit(lambda d, wi, w: jnp.einsum("nqc,q->nc", m.eval(d, jnp.broadcast_to(wi[:, None], d.shape)), w))
         return timed(f, jnp.asarray(d), jnp.asarray(wi), jnp.asarray(w))
 
-    ref, _, _ = run(16, 32)
-    rows = []
-    for npol, naz in ((1, 1), (1, 4), (2, 4), (2, 8), (4, 8), (8, 16)):
-        out, c, t = run(npol, naz)
-        rows.append({"knob": "aperture quadrature", "case": "2 deg cone, alpha 0.1", "setting": f"{npol}x{naz}",
-                     "error": rel_err(out, ref), "time_s": t, "compile_s": c})
-    return rows
+    return sweep(run, (16, 32), ((1, 1), (1, 4), (2, 4), (2, 8), (4, 8), (8, 16)), "aperture quadrature",
+                 "2 deg cone, alpha 0.1", lambda npol, naz: f"{npol}x{naz}")
 
 
 def _merl_conductor():
