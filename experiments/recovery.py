@@ -65,13 +65,23 @@ RANGES = {
     "conductor": {"alpha": (0.05, 0.5), "eta": (0.1, 3.0), "k": (1.0, 8.0)},
     "dielectric": {"alpha": (0.05, 0.5), "eta": (1.3, 2.0)},
     "plastic": {"albedo": (0.05, 0.9), "alpha": (0.05, 0.5), "eta": (1.3, 1.8)},
-    "car_paint": {"alpha_base": (0.1, 0.5), "eta_base": (0.1, 3.0), "k_base": (1.0, 8.0),
+    "car_paint": {"alpha_base": (0.1, 0.5), "k_base": (1.0, 8.0),
                   "alpha_coat": (0.05, 0.3), "eta_coat": (1.3, 1.8)},
 }
 
+#: Real index of aluminium at (650, 550, 450) nm (Rakic 1995): the flakes of metallic car paint.
+ALUMINIUM_ETA = (1.657, 0.880, 0.521)
+
+#: Parameters known to the user and held fixed in the fit (and in the truths). Through a clear coat
+#: the metal is seen only inside Snell's window (internal angles below asin(1 / eta_coat) ~ 40 deg),
+#: where a conductor's Fresnel curve is flat: the data fix its normal-incidence reflectance, not
+#: eta and k apart (Cramer-Rao: 11-32 % of eta_base, k_base within 2 %; see docs/fitting.md). With
+#: the flake metal's eta known, k_base carries the base colour and is identifiable.
+FIXED = {"car_paint": {"eta_base": ALUMINIUM_ETA}}
+
 #: Measurement geometry per family: (builder name, keyword arguments).
 GEOMETRIES = {
-    "conductor": ("merl", dict(n_theta_h=16, n_theta_d=16, n_phi_d=32)),
+    "conductor": ("merl", dict(n_theta_h=16, n_theta_d=32, n_phi_d=32)),
     "dielectric": ("hemisphere", dict(theta_i=(0.0, 30.0, 60.0), n_theta=9, n_phi=24, transmission=True)),
     "plastic": ("merl", dict(n_theta_h=8, n_theta_d=8, n_phi_d=16)),
     "car_paint": ("merl", dict(n_theta_h=8, n_theta_d=8, n_phi_d=16)),
@@ -85,7 +95,7 @@ def _car_paint_base_f0(par, vec):
     """Normal-incidence reflectance of the metal base seen from inside the coat, per channel:
     ``((eta - eta_c)^2 + k^2) / ((eta + eta_c)^2 + k^2)`` -- the identifiable combination of the
     base's ``eta`` and ``k`` (inside the coat the metal is only seen within Snell's window)."""
-    p = par.split(vec)
+    p = par.full(par.split(vec))
     e, k, c = p["eta_base"], p["k_base"], p["eta_coat"][..., None]
     return ((e - c) ** 2 + k ** 2) / ((e + c) ** 2 + k ** 2)
 
@@ -96,8 +106,8 @@ DERIVED = {"car_paint": ("base_F0", _car_paint_base_f0)}
 
 def draw(family, rng, C):
     out = {}
-    par = Parametrization(family, C)
-    for p in par.family.params:
+    par = Parametrization(family, C, fixed=FIXED.get(family))
+    for p in par.free:
         lo, hi = RANGES[family][p.name]
         out[p.name] = rng.uniform(lo, hi, C) if (p.per_channel and C > 1) else (
             rng.uniform(lo, hi, 1) if p.per_channel else rng.uniform(lo, hi))
@@ -111,7 +121,7 @@ def geometry_for(family):
 
 
 def make_tables(family, R, rng, C, wo, wi):
-    par = Parametrization(family, C)
+    par = Parametrization(family, C, fixed=FIXED.get(family))
     ev = jax.jit(lambda z: par.model(z).eval(jnp.asarray(wo), jnp.asarray(wi)))
     truths, tables = [], []
     for _ in range(R):
@@ -189,7 +199,7 @@ def run(family, R, seed, chunk, starts, max_steps, log, partial, rtol=1e-6, atol
             batch = [tables[j] for j in idx[i:i + chunk]]
             pad = chunk - len(batch)  # keep one batch shape: one compilation per start count
             t1 = time.perf_counter()
-            v, o, labels = fit_batch(batch + [batch[-1]] * pad, model=family, starts=n_starts,
+            v, o, labels = fit_batch(batch + [batch[-1]] * pad, model=family, fixed=FIXED.get(family), starts=n_starts,
                                      max_steps=max_steps, rtol=rtol, atol=atol)
             chunk_s.append(time.perf_counter() - t1)
             vals.append(v[:len(batch)])
@@ -261,7 +271,7 @@ def refit(family, R, seed, chunk, n_starts, max_steps, part, out, log):
     for i in range(0, len(redo), chunk):
         batch = [tables[j] for j in redo[i:i + chunk]]
         t1 = time.perf_counter()
-        v, o, _ = fit_batch(batch + [batch[-1]] * (chunk - len(batch)), model=family, starts=n_starts,
+        v, o, _ = fit_batch(batch + [batch[-1]] * (chunk - len(batch)), model=family, fixed=FIXED.get(family), starts=n_starts,
                             max_steps=max_steps, rtol=1e-6, atol=1e-9)
         secs.append(time.perf_counter() - t1)
         vals += v[:len(batch)].tolist()
@@ -298,7 +308,7 @@ def summarize(parts):
     cat = lambda key: np.concatenate([np.asarray(p[key], float) for p in parts])[order]  # noqa: E731
     truths, values, objective, n_res, cov = (cat(k) for k in ("truths", "values", "objective", "n_res", "fisher_cov"))
     chunk_s = [x for p in parts for x in p["chunk_s"]]
-    par = Parametrization(family, 1 if family == "dielectric" else 3)
+    par = Parametrization(family, 1 if family == "dielectric" else 3, fixed=FIXED.get(family))
     R = len(truths)
     n_raw = values.shape[1]
     if parts[0].get("R_planned") is None:
@@ -315,7 +325,7 @@ def summarize(parts):
         "family": family, "R": R, "noise": NOISE, "labels": labels, "derived_labels": dlabels,
         "geometry": r0["geometry"], "n_rows": r0["n_rows"], "parts": len(parts),
         "median_valid_rows": float(np.median([v for p in parts for v in p["valid_rows"]])),
-        "ranges": RANGES[family], "starts": r0["starts"], "max_steps": r0["max_steps"], "chunk": r0["chunk"],
+        "ranges": RANGES[family], "fixed": FIXED.get(family), "starts": r0["starts"], "max_steps": r0["max_steps"], "chunk": r0["chunk"],
         "fit_wall_s": float(sum(chunk_s)), "first_chunk_s": chunk_s[0] if chunk_s else None,
         "stopped_early": any(p.get("stopped_early", False) for p in parts),
         "refit_separately": any(p.get("refit_separately", False) for p in parts),
@@ -349,6 +359,8 @@ def write_md(res, path):
                  f"hemisphere, theta_i = {g['theta_i']}, {g['n_theta']} x {g['n_phi']} detector positions up to "
                  f"{g['theta_o_max']} deg, transmission={g['transmission']}")
         ranges = ", ".join(f"{k} in [{lo}, {hi}]" for k, (lo, hi) in r["ranges"].items())
+        if r.get("fixed"):
+            ranges += "; known to the user and held fixed: " + ", ".join(f"{k} = {v}" for k, v in r["fixed"].items())
         later = (f", later chunks {r['later_chunk_median_s']:.0f} s each" if r["later_chunk_median_s"] else "")
         if r.get("parts", 1) > 1:
             later += f"; summed over {r['parts']} parallel processes"

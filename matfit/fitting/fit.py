@@ -19,6 +19,7 @@ import numpy as np
 from ..errors import MatfitError, ParameterError
 from ..parallel import device_count, shard_batch
 from ..table import Table
+from ._conductor_guess import conductor_guess
 from .diagnostics import diagnose
 from .lm import column_groups, jacobian, lm_fd
 from .losses import check_loss, residuals
@@ -165,13 +166,19 @@ def _solver(family, channels, fixed_items, tied, method, loss, robust, scale, ma
 
 
 # --------------------------------------------------------------------------------------------
+_CONDUCTOR_DISTRIBUTION = {"conductor": "ggx", "conductor_beckmann": "beckmann"}
+
+
 def initial_guess(table: Table, par: Parametrization):
     """Data-driven starting values: diffuse floor, specular peak height and width.
 
     The floor is the 10th percentile of the valid values (times pi: a Lambertian albedo); the
     peak is the row of largest ``f cos(theta_i)``; the width is the largest half-vector angle
     among rows above half the peak's excess over the floor, turned into a GGX alpha through
-    ``D(theta_h)/D(0) = 1/2  <=>  tan(theta_h) = alpha * sqrt(sqrt(2) - 1)``.
+    ``D(theta_h)/D(0) = 1/2  <=>  tan(theta_h) = alpha * sqrt(sqrt(2) - 1)``. For the rough
+    conductor families the width is then refined from the lobe's shape and ``eta``, ``k`` per
+    channel come from the Fresnel curve read off the table
+    (:func:`matfit.fitting._conductor_guess.conductor_guess`).
     """
     v = np.asarray(table.values)[table.valid]
     wo = np.asarray(table.wo)[table.valid]
@@ -198,6 +205,13 @@ def initial_guess(table: Table, par: Parametrization):
         "eta": 1.5 if par.family.name in ("plastic", "dielectric") else np.ones_like(r0),
         "k": k, "eta_base": np.ones_like(r0), "k_base": k, "eta_coat": 1.5,
     }
+    if par.family.name in _CONDUCTOR_DISTRIBUTION:
+        # the Fresnel curve read off the table (matfit.fitting._conductor_guess): eta = 1 and the
+        # half-width alpha start in the basin of a bound (eta -> 8, k -> 0) for many metals
+        bounds = {p.name: (p.lower, p.upper) for p in par.family.params}
+        g = conductor_guess(wo, wi, v, alpha, _CONDUCTOR_DISTRIBUTION[par.family.name], bounds["eta"], bounds["k"])
+        if g is not None:
+            guess["alpha"], guess["eta"], guess["k"] = g
     # Every guess strictly inside its bounds (the bijection saturates at a bound).
     out = {}
     for p in par.free:

@@ -1,0 +1,127 @@
+"""Data-driven starting values for a rough conductor: width from the lobe's shape, then the
+complex index from the Fresnel curve read off the table.
+
+A rough conductor is ``f = F(theta_d) * D(h) G2(wo, wi, h) / (4 cos_o cos_i)`` with ``theta_d``
+the angle between ``wi`` and the half vector ``h``. The microfacet factor
+``m = D G2 / (4 cos_o cos_i)`` depends on ``alpha`` only, so
+
+1. for each ``alpha`` on a grid around the half-width estimate, ``log(f / m)`` must be a
+   function of ``theta_d`` alone; the ``alpha`` whose ``log(f / m)`` varies least within bins of
+   ``theta_d`` wins;
+2. with that ``alpha``, the median of ``f / m`` in each ``theta_d`` bin is a measured Fresnel
+   curve ``F(theta_d)`` per channel, and ``(eta, k)`` come from a grid search of
+   :func:`matfit.fresnel.fresnel_conductor` against that curve (relative error, bins weighted by
+   their row counts).
+
+A start from this guess lies in the basin of the global optimum for the tables of
+``experiments/recovery.py`` where the half-width guess with ``eta = 1`` ran into the bounds of
+``eta`` and ``k`` (local minima at ``eta -> 8`` or ``k -> 0``).
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+
+from ..fresnel import fresnel_conductor
+from ..microfacet import make_distribution
+
+#: Rows darker than this fraction of the brightest row carry no shape information for the guess.
+_MIN_RELATIVE = 1e-3
+#: Width of the theta_d bins (degrees).
+_BIN_DEG = 2.0
+#: A Fresnel curve is read only from at least _MIN_BINS bins holding _MIN_ROWS_PER_BIN rows each.
+_MIN_BINS, _MIN_ROWS_PER_BIN = 6, 8
+
+
+def _microfacet_factor(wo, wi, h, alpha, distribution):
+    d = make_distribution(distribution, jnp.asarray(alpha))
+    m = d.D(jnp.asarray(h)) * d.G2(jnp.asarray(wo), jnp.asarray(wi), jnp.asarray(h))
+    return np.asarray(m) / (4 * wo[:, 2] * wi[:, 2])
+
+
+def conductor_guess(wo, wi, values, alpha0, distribution="ggx", eta_range=(0.05, 8.0), k_range=(0.0, 12.0)):
+    """Starting ``alpha`` (scalar) and per-channel ``eta``, ``k`` for a rough conductor table.
+
+    Parameters
+    ----------
+    wo, wi : ndarray (N, 3)
+        Valid rows' directions (both above the surface).
+    values : ndarray (N, C)
+        Measured ``f`` of those rows.
+    alpha0 : float
+        A first width estimate (from the lobe's half width); the search spans 0.4x to 2.5x of it.
+    distribution : {"ggx", "beckmann"}
+    eta_range, k_range : tuple of float
+        Bounds of the grid search (the fit's parameter bounds).
+
+    Returns
+    -------
+    (alpha, eta, k) : float, ndarray (C,), ndarray (C,)
+        or None when the table is too sparse to read a Fresnel curve from (fewer than
+        ``_MIN_BINS`` theta_d bins with ``_MIN_ROWS_PER_BIN`` rows each).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from data_synth import geometry
+    >>> from matfit.models import RoughConductor
+    >>> from matfit.fitting._conductor_guess import conductor_guess
+    >>> wo, wi, ok, _ = geometry.merl_grid(16, 16, 32)
+    >>> wo, wi = wo[ok], wi[ok]
+    >>> f = np.asarray(RoughConductor(0.2, [0.3, 1.2, 2.5], [3.0, 5.0, 2.0]).eval(wo, wi))
+    >>> a, eta, k = conductor_guess(wo, wi, f, alpha0=0.3)
+    >>> bool(abs(a - 0.2) < 0.02), bool(np.all(abs(eta - [0.3, 1.2, 2.5]) < [0.1, 0.2, 0.3]))
+    (True, True)
+    """
+    wo = np.asarray(wo, float)
+    wi = np.asarray(wi, float)
+    v = np.asarray(values, float).reshape(len(wo), -1)
+    mean = v.mean(axis=1)
+    keep = (mean > _MIN_RELATIVE * mean.max()) & (wo[:, 2] > 1e-3) & (wi[:, 2] > 1e-3) & np.all(v > 0, axis=1)
+    wo, wi, v, mean = wo[keep], wi[keep], v[keep], mean[keep]
+    h = wo + wi
+    h /= np.linalg.norm(h, axis=1, keepdims=True)
+    theta_d = np.degrees(np.arccos(np.clip(np.sum(wi * h, axis=1), -1, 1)))
+    bins = np.minimum((theta_d / _BIN_DEG).astype(int), int(90 / _BIN_DEG) - 1)
+    uniq, inv, counts = np.unique(bins, return_inverse=True, return_counts=True)
+    if np.count_nonzero(counts >= _MIN_ROWS_PER_BIN) < _MIN_BINS:
+        return None  # too sparse to read a Fresnel curve (e.g. a 32-row texel): keep the simple guess
+
+    def spread(m):
+        """Mean squared within-bin deviation of log(f / m), per candidate alpha (rows of m)."""
+        ok = m > 0
+        lr = np.where(ok, np.log(mean / np.where(ok, m, 1.0)), 0.0)
+        n = np.maximum(np.stack([np.bincount(inv, o, len(uniq)) for o in ok.astype(float)]), 1)
+        s = np.stack([np.bincount(inv, x, len(uniq)) for x in lr * ok])
+        dev = lr - np.take_along_axis(s / n, np.broadcast_to(inv, lr.shape), axis=1)
+        return np.sum(ok * dev**2, axis=1) / np.maximum(ok.sum(axis=1), 1)
+
+    alphas = np.clip(alpha0 * np.geomspace(0.4, 2.5, 31), 0.005, 1.4)
+    scores = spread(_microfacet_factor(wo, wi, h, alphas[:, None], distribution))
+    j = int(np.argmin(scores))
+    # one parabolic refinement step in log(alpha)
+    alpha = alphas[j]
+    if 0 < j < len(alphas) - 1:
+        s0, s1, s2 = scores[j - 1], scores[j], scores[j + 1]
+        den = s0 - 2 * s1 + s2
+        if den > 0:
+            step = 0.5 * (s0 - s2) / den
+            alpha = float(np.exp(np.log(alphas[j]) + step * (np.log(alphas[j + 1]) - np.log(alphas[j]))))
+    m = _microfacet_factor(wo, wi, h, alpha, distribution)
+    ratio = v / np.maximum(m, 1e-300)[:, None]
+    curve = np.stack([np.array([np.median(ratio[inv == b, c]) for b in range(len(uniq))]) for c in range(v.shape[1])], 1)
+    cos_b = np.cos(np.radians(np.array([theta_d[inv == b].mean() for b in range(len(uniq))])))
+    eta_grid = np.geomspace(max(eta_range[0], 1e-3) * 1.05, eta_range[1] / 1.05, 72)
+    k_grid = np.linspace(k_range[0], k_range[1], 97)[:-1] + 0.5 * (k_range[1] - k_range[0]) / 96
+    E, K = np.meshgrid(eta_grid, k_grid, indexing="ij")
+    F = np.asarray(fresnel_conductor(jnp.asarray(cos_b)[:, None], jnp.asarray(E.ravel()), jnp.asarray(K.ravel())))
+    F = np.maximum(F, 1e-12)  # (bins, grid)
+    eta, k = [], []
+    for c in range(v.shape[1]):
+        y = np.maximum(curve[:, c], 1e-12)
+        err = np.sum(counts[:, None] * (np.log(F) - np.log(y)[:, None]) ** 2, axis=0)
+        i = int(np.argmin(err))
+        eta.append(E.ravel()[i])
+        k.append(K.ravel()[i])
+    return float(alpha), np.array(eta), np.array(k)
