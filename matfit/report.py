@@ -86,7 +86,7 @@ def loss_history(table, family, loss="l2", method="lm", starts=4, seed=0, max_st
     import optimistix as optx
 
     from .errors import ParameterError
-    from .fitting.fit import _residual_fn, _starts, _table_arrays, initial_guess
+    from .fitting.fit import _residual_fn, _table_arrays, fit_starts
     from .fitting.losses import check_loss
     from .fitting.params import Parametrization
 
@@ -99,12 +99,9 @@ def loss_history(table, family, loss="l2", method="lm", starts=4, seed=0, max_st
                                                      for k, v in (fixed or {}).items()}, tuple(tied))
     fn = _residual_fn(par, loss, robust, float(robust_scale))
     arrays = _table_arrays(table, dtype)
-    z0s = _starts(table, par, starts, seed)
-    if init is not None:  # as fit() does: init replaces the data-driven guess of start 0
-        g = initial_guess(table, par)
-        g.update(init)
-        z0s = z0s.at[0].set(par.z_from_theta(g))
-    z0s = z0s.astype(arrays[0].dtype)
+    # the starts fit() runs (init replaces entries of the data-driven guess of start 0)
+    z0s = fit_starts(table, par, starts, seed, jax.jit(lambda zs, a: jax.vmap(
+        lambda z: 0.5 * jax.numpy.sum(fn(z, a) ** 2))(zs)), arrays, init)
     record = []
 
     def verbose(**kw):

@@ -156,13 +156,17 @@ def _solver(family, channels, fixed_items, tied, method, loss, robust, scale, ma
         obj = 0.5 * jnp.sum(r * r, axis=-1)
         return z, obj, steps, ok
 
+    def objective(zs, arrays):
+        r = jax.vmap(lambda zz: fn(zz, arrays))(zs)
+        return 0.5 * jnp.sum(r * r, axis=-1)
+
     def jac(z, arrays):
         if method == "lm_fd":  # the solver's own Jacobian: grouped differences, no forward-mode AD
             r, J = jacobian(_by_channel(fn), z, arrays, *groups)
             return r.reshape(-1), J.reshape(-1, z.shape[-1])
         return fn(z, arrays), jax.jacfwd(fn)(z, arrays)
 
-    return par, jax.jit(run), jax.jit(jac)
+    return par, jax.jit(run), jax.jit(jac), jax.jit(objective)
 
 
 # --------------------------------------------------------------------------------------------
@@ -221,13 +225,52 @@ def initial_guess(table: Table, par: Parametrization):
     return out
 
 
-def _starts(table, par, n, seed):
-    base = par.z_from_theta(initial_guess(table, par))
+#: Candidates screened per extra start (see :func:`_screened_starts`).
+SCREEN_PER_START = 8
+
+
+def _candidates(par, base, n_extra, seed):
+    """``SCREEN_PER_START * n_extra`` candidate starts per table, (B, K, p): half the data-driven
+    start plus N(0, 1) steps in the unconstrained space, half spread over the whole parameter box
+    (bounded parameters uniform in (2 %, 98 %) of their range, others N(0, 1) in z)."""
+    K = SCREEN_PER_START * n_extra
     rng = np.random.default_rng(seed)
-    zs = [np.asarray(base)]
-    for _ in range(max(n, 1) - 1):
-        zs.append(np.asarray(base) + rng.normal(0, 1.0, base.shape))
-    return jnp.asarray(np.stack(zs))
+    local = rng.normal(0, 1.0, (K - K // 2, par.size))
+    u = rng.uniform(0.02, 0.98, (K // 2, par.size))
+    bounded = np.isfinite(par.lower_upper()[1])
+    spread = np.where(bounded, np.log(u) - np.log1p(-u), rng.normal(0, 1.0, u.shape))
+    base = jnp.asarray(base)
+    return jnp.concatenate([base[:, None, :] + jnp.asarray(local, base.dtype)[None],
+                            jnp.broadcast_to(jnp.asarray(spread, base.dtype), (base.shape[0],) + spread.shape)], axis=1)
+
+
+def fit_starts(table, par, n, seed, objective, arrays, init=None):
+    """The ``n`` starts (n, p) that :func:`fit` runs: the data-driven guess (with ``init``'s values
+    replacing its entries), then the best screened candidates (:func:`_screened_starts`).
+    ``objective(zs, arrays)`` is the fit's objective for a stack of ``z``."""
+    g = initial_guess(table, par)
+    if init is not None:
+        g.update(init)
+    return _screened_starts(objective, par, par.z_from_theta(g).astype(arrays[0].dtype)[None], n, seed, arrays)[0]
+
+
+def _screened_starts(objective, par, base, n, seed, arrays, batched=False):
+    """Starts per table, (B, n, p): the data-driven start ``base`` (B, p) first, then the ``n - 1``
+    candidates of :func:`_candidates` with the lowest objective on the table (one vectorized
+    evaluation of the fit's own objective; multi-start without the cost of ``n`` full solves
+    from blind perturbations, which for layered and metal families mostly end at a bound)."""
+    base = jnp.asarray(base)
+    if n <= 1:
+        return base[:, None, :]
+    cand = _candidates(par, base, n - 1, seed)
+    if batched:
+        (c, a), nb = shard_batch((cand, arrays))
+        obj = batched_run(objective)(c, a)[:nb]
+    else:
+        obj = objective(cand[0], arrays)[None]
+    obj = jnp.where(jnp.isfinite(obj), obj, jnp.inf)
+    best = jnp.argsort(obj, axis=1)[:, : n - 1]
+    return jnp.concatenate([base[:, None, :], jnp.take_along_axis(cand, best[:, :, None], axis=1)], axis=1)
 
 
 def _table_arrays(table, dtype):
@@ -287,7 +330,7 @@ def fit(table, model="plastic", method="lm", loss="l2", robust=None, robust_scal
     Parametrization(model, table.n_channels, fixed, tied).check_theta("fit: init", {} if init is None else init)
     C = table.n_channels
     fixed_items = tuple(sorted((k, tuple(np.atleast_1d(np.asarray(v, float)).tolist())) for k, v in (fixed or {}).items()))
-    par, run, jac = _solver(model, C, fixed_items, tuple(tied), method, loss, robust, float(robust_scale),
+    par, run, jac, objective = _solver(model, C, fixed_items, tuple(tied), method, loss, robust, float(robust_scale),
                             int(max_steps), float(rtol), float(atol))
     n_res = int(np.count_nonzero(table.effective_weight()))
     if n_res <= par.size:
@@ -295,13 +338,9 @@ def fit(table, model="plastic", method="lm", loss="l2", robust=None, robust_scal
                        f"({', '.join(par.labels)}): at least {par.size + 1} are needed")
     arrays = _table_arrays(table, dtype)
     n_rows = arrays[2].size
-    z0s = _starts(table, par, starts, seed)
-    if init is not None:
-        g = initial_guess(table, par)
-        g.update(init)
-        z0s = z0s.at[0].set(par.z_from_theta(g))
-    z0s = z0s.astype(arrays[0].dtype)
-    z, obj, steps, ok = run(z0s, _split_rows(arrays))
+    rows = _split_rows(arrays)
+    z0s = fit_starts(table, par, starts, seed, objective, rows, init)
+    z, obj, steps, ok = run(z0s, rows)
     obj = np.asarray(obj)
     good = np.isfinite(obj) & np.all(np.isfinite(np.asarray(z)), axis=1)
     if not good.any():
@@ -365,7 +404,7 @@ def fit_batch(tables, model="plastic", method="lm", loss="l2", fixed=None, tied=
         if len(t) != len(t0) or t.n_channels != t0.n_channels:
             raise ParameterError(f"fit_batch: table {i} has shape ({len(t)}, {t.n_channels}), expected ({len(t0)}, {t0.n_channels})")
     fixed_items = tuple(sorted((k, tuple(np.atleast_1d(np.asarray(v, float)).tolist())) for k, v in (fixed or {}).items()))
-    par, run, _ = _solver(model, t0.n_channels, fixed_items, tuple(tied), method, loss, None, 1.0,
+    par, run, _, objective = _solver(model, t0.n_channels, fixed_items, tuple(tied), method, loss, None, 1.0,
                           int(max_steps), float(rtol), float(atol))
     # Stacked on the host and moved once; the data-driven guesses are mapped to z in one call.
     stacked = tuple(jnp.asarray(np.stack(a), dtype=dtype) for a in zip(
@@ -373,9 +412,7 @@ def fit_batch(tables, model="plastic", method="lm", loss="l2", fixed=None, tied=
     guesses = [initial_guess(t, par) for t in tables]
     base = jax.vmap(par.z_from_theta)({k: jnp.asarray(np.stack([np.broadcast_to(g[k], np.shape(guesses[0][k]))
                                                                    for g in guesses]), float) for k in guesses[0]})
-    pert = np.random.default_rng(0).normal(0, 1.0, (max(starts, 1) - 1, par.size))  # as _starts(seed=0)
-    z0 = (base[:, None, :] + jnp.concatenate([jnp.zeros((1, par.size)), jnp.asarray(pert)])[None]).astype(
-        stacked[0].dtype)
+    z0 = _screened_starts(objective, par, base.astype(stacked[0].dtype), starts, 0, stacked, batched=True)
     # One block of tables per device (every CPU core with host devices, see matfit.parallel).
     (z0, stacked), n = shard_batch((z0, stacked))
     z, obj, _, _ = batched_run(run)(z0, stacked)
