@@ -292,11 +292,11 @@ def apply_refits(family, parts, out):
             for p in parts:
                 if j in p["ids"]:
                     k = p["ids"].index(j)
-                    p["n_refit"] += 1
-                    p["refit_starts"] = d["starts"]
+                    p["extra_refit"] = p.get("extra_refit", 0) + 1
+                    p["extra_refit_starts"] = d["starts"]
                     if o < p["objective"][k]:
                         p["values"][k], p["objective"][k] = v, o
-                        p["n_refit_improved"] += 1
+                        p["extra_refit_improved"] = p.get("extra_refit_improved", 0) + 1
     return sum(sum(json.loads(q.read_text())["chunk_s"]) for q in files) if files else None
 
 
@@ -337,6 +337,9 @@ def summarize(parts):
         "all_params_within_2pct": float(np.all(within[:, :n_raw], axis=1).mean()),
         "rtol": r0["rtol"], "atol": r0["atol"], "refit_starts": r0["refit_starts"], "refit_chi2": REFIT_CHI2,
         "n_refit": sum(p["n_refit"] for p in parts), "n_refit_improved": sum(p["n_refit_improved"] for p in parts),
+        "extra_refit": sum(p.get("extra_refit", 0) for p in parts),
+        "extra_refit_improved": sum(p.get("extra_refit_improved", 0) for p in parts),
+        "extra_refit_starts": max(p.get("extra_refit_starts", 0) for p in parts),
         "median_rel_err": {lab: float(np.median(rel[:, i])) for i, lab in enumerate(labels)},
         "median_rel_se": {lab: float(np.median(rel_se[:, i])) for i, lab in enumerate(labels)},
         "max_rel_se": {lab: float(np.max(rel_se[:, i])) for i, lab in enumerate(labels)},
@@ -369,9 +372,10 @@ def write_md(res, path):
         stop = (f" (of {r['R_planned']} planned: the run was stopped at the session's time limit; these are the "
                 f"tables it had finished, first pass only)" if r.get("stopped_early") else "")
         if r.get("refit_separately"):
-            stop = (f" (the run was stopped after its first pass; {r['n_refit']} of its tables above chi^2/n = "
-                    f"{REFIT_CHI2} were then refitted with {r['refit_starts']} starts by a separate `--refit` run, "
-                    f"{r['refit_wall_s']:.0f} s summed over its processes; {r['n_refit_improved']} improved)")
+            stop = (f" ({r['n_refit']} tables above chi^2/n = {REFIT_CHI2} after the first pass were refitted in the run "
+                    f"with {r['refit_starts']} starts ({r['n_refit_improved']} improved); the {r['extra_refit']} still "
+                    f"above were then refitted with {r['extra_refit_starts']} starts by a separate `--refit` run, "
+                    f"{r['refit_wall_s']:.0f} s; {r['extra_refit_improved']} improved)")
         L += [f"## {r['family']}", "",
               f"R = {r['R']}{stop} random truths ({ranges}; per-channel parameters drawn per channel). Geometry: {gdesc}; "
               f"{r['n_rows']} rows above the horizon, median {r['median_valid_rows']:.0f} kept (dynamic range 1e5). "

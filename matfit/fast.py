@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._math import COS_EPS, Vec3, dot, normalize
+from ._math import Vec3, dot, normalize
 from .errors import ParameterError
 from .models import Blend, Lambert, Plastic, RoughConductor
 from .models._base import AbstractBSDF
@@ -49,13 +49,7 @@ class SoAPairs(eqx.Module):
     h : Vec3
         Reflection half vector ``normalize(wo + wi)`` (depends only on the directions).
     cos_d : jax.Array
-        ``wo . h``, the cosine that the Fresnel term of a reflection lobe takes (1 for pairs that
-        are not reflection pairs, whose value is 0).
-    tan_o, tan_i, tan_h : jax.Array
-        ``tan(theta)`` of ``wo``, ``wi`` and ``h`` for reflection pairs (both directions above
-        ``COS_EPS``), 0 otherwise.
-    scale : jax.Array
-        ``1 / (cos_o cos_i cos_h^4)`` for reflection pairs, 0 otherwise (see :func:`_eval_channel`).
+        ``wo . h``, the cosine that the Fresnel term of a reflection lobe takes.
     n : int
         Number of valid pairs (the first ``n`` entries); static.
     """
@@ -64,10 +58,6 @@ class SoAPairs(eqx.Module):
     wi: Vec3
     h: Vec3
     cos_d: jax.Array
-    tan_o: jax.Array
-    tan_i: jax.Array
-    tan_h: jax.Array
-    scale: jax.Array
     n: int = eqx.field(static=True)
 
     @property
@@ -109,25 +99,14 @@ def soa_pairs(wo, wi, dtype=None, devices=None) -> SoAPairs:
     comps = tuple(np.ascontiguousarray(a[:, j], dtype=dtype) for a in (wo, wi) for j in range(3))
     sharded, n = shard_batch(comps, devices)
     wo, wi = Vec3(*sharded[:3]), Vec3(*sharded[3:])
-    return SoAPairs(wo, wi, *_direction_terms(wo, wi), n)
+    h, cos_d = _half_vector(wo, wi)
+    return SoAPairs(wo, wi, h, cos_d, n)
 
 
 @jax.jit
-def _direction_terms(wo, wi):
-    """Everything that depends only on the directions: the half vector, ``cos_d`` and, for
-    reflection pairs, the tangents and the scale of the isotropic kernel (0 elsewhere)."""
+def _half_vector(wo, wi):
     h = normalize(wo + wi)
-    cos_d = dot(wo, h)
-    ok = (wo.z > COS_EPS) & (wi.z > COS_EPS)
-    one = jnp.ones_like(wo.z)
-
-    def tan(v):
-        z = jnp.where(ok, v.z, one)
-        return jnp.where(ok, jnp.sqrt(v.x * v.x + v.y * v.y) / z, 0)
-
-    hz = jnp.where(ok, h.z, one)
-    scale = jnp.where(ok, 1 / (jnp.where(ok, wo.z, one) * jnp.where(ok, wi.z, one) * (hz * hz) ** 2), 0)
-    return h, jnp.where(ok, cos_d, one), tan(wo), tan(wi), tan(h), scale
+    return h, dot(wo, h)
 
 
 def supports_soa(model) -> bool:
@@ -168,32 +147,10 @@ def channel_model(model: AbstractBSDF, c: int) -> AbstractBSDF:
     return jax.tree_util.tree_map(pick, model)
 
 
-def _isotropic_kernel(model):
-    """True for a rough conductor whose ``eval`` can run on the tangent form (see :func:`_eval_channel`)."""
-    return isinstance(model, RoughConductor) and model.alpha_y is None and model.distribution in ("ggx", "beckmann")
-
-
 def _eval_channel(model, pairs, c):
-    r"""Channel ``c`` of ``model.eval`` on SoA pairs, with the direction-only quantities precomputed.
-
-    An isotropic GGX or Beckmann conductor sees a direction ``v`` only through rotation-invariant,
-    scale-free terms -- ``Lambda(v)`` through ``tan(theta_v)``, ``D(m)`` through ``tan(theta_m)``
-    and a factor ``1 / m_z^4`` -- so its ``eval_half`` on the unnormalized vectors
-    ``(tan theta, 0, 1)`` equals the true value times ``cos_o cos_i cos_h^4``:
-
-    .. math:: f(\omega_o, \omega_i) = rac{f(	ilde\omega_o, 	ilde\omega_i, 	ilde h)}
-              {\cos	heta_o\cos	heta_i\cos^4	heta_h}, \qquad 	ilde v = (	an	heta_v, 0, 1).
-
-    The kernel then reads four precomputed arrays (three tangents and the scale, which is 0 for
-    pairs that are not reflection pairs) instead of nine direction components: the evaluation is
-    bound by memory traffic on CPUs (``docs/performance.md``).
-    """
+    """Channel ``c`` of ``model.eval`` on SoA pairs, with the direction-only quantities precomputed."""
     mc = channel_model(model, c)
-    if _isotropic_kernel(mc):
-        zero, one = jnp.zeros((), pairs.tan_o.dtype), jnp.ones((), pairs.tan_o.dtype)
-        o, i, h = (Vec3(t, zero, one) for t in (pairs.tan_o, pairs.tan_i, pairs.tan_h))
-        f = pairs.scale[..., None] * mc.eval_half(o, i, h, pairs.cos_d)
-    elif isinstance(mc, RoughConductor):
+    if isinstance(mc, RoughConductor):
         f = mc.eval_half(pairs.wo, pairs.wi, pairs.h, pairs.cos_d)
     else:
         f = mc.eval(pairs.wo, pairs.wi)

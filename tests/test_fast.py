@@ -68,23 +68,6 @@ def test_eval_soa_matches_eval(name, dtype, rng, x64):
     assert len(tup) == model.channels and all(t.shape == (301,) for t in tup)
 
 
-@pytest.mark.parametrize("name", ["ggx", "beckmann_hc"])
-def test_isotropic_tangent_kernel_at_grazing_pairs(name, x64):
-    """The isotropic conductors' tangent form (matfit.fast._eval_channel) at pairs near the
-    horizon, at the normal, at the validity threshold and below it: equal to ``eval``."""
-    model = _models(np.float64)[name]
-    cos = np.array([1e-7, 2e-6, 1e-4, 1e-2, 0.3, 1.0])
-    phi = np.array([0.0, 0.7, np.pi / 2, np.pi])
-    C = np.array(np.meshgrid(cos, cos, phi, indexing="ij")).reshape(3, -1)
-    s_o, s_i = np.sqrt(1 - C[0] ** 2), np.sqrt(1 - C[1] ** 2)
-    wo = np.stack([s_o, 0 * s_o, C[0]], -1)
-    wi = np.stack([s_i * np.cos(C[2]), s_i * np.sin(C[2]), C[1]], -1)
-    ref = np.asarray(model.eval(jnp.asarray(wo), jnp.asarray(wi)))
-    out = np.asarray(eval_soa(model, soa_pairs(wo, wi), stack=True))
-    assert np.all(np.isfinite(out)) and np.count_nonzero(ref) > 50
-    np.testing.assert_allclose(out, ref, rtol=1e-10, atol=0)
-
-
 def test_supports_soa_lists_the_structure_of_arrays_models():
     m = _models(jnp.float32)
     assert supports_soa(m["ggx"]) and supports_soa(m["blend"]) and supports_soa(m["plastic_smooth"])

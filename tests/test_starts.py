@@ -59,3 +59,34 @@ def test_fit_batch_starts_include_the_guess(table, x64):
     v1, o1, _ = fit_batch([table], model="conductor", starts=1, max_steps=40)
     v3, o3, _ = fit_batch([table], model="conductor", starts=3, max_steps=40)
     assert o3[0] <= o1[0] * (1 + 1e-9)
+
+
+def test_percentile10_matches_numpy():
+    from matfit.fitting.fit import _percentile10
+
+    rng = np.random.default_rng(3)
+    v = rng.random((7, 50, 3))
+    valid = rng.random((7, 50)) < 0.6
+    valid[0] = False
+    valid[0, 4] = True  # one valid row
+    got = _percentile10(v, valid)
+    ref = np.stack([np.percentile(v[b][valid[b]], 10, axis=0) for b in range(7)])
+    np.testing.assert_allclose(got, ref, rtol=1e-14)
+
+
+@pytest.mark.parametrize("family", ["conductor", "plastic", "car_paint"])
+def test_initial_guesses_batch_equals_one_by_one(table, family):
+    from matfit.fitting.fit import initial_guesses
+
+    rng = np.random.default_rng(4)
+    tables = []
+    for i in range(5):
+        valid = rng.random(len(table)) < 0.8 if i else np.ones(len(table), bool)
+        tables.append(Table(wo=table.wo, wi=table.wi, values=table.values * rng.uniform(0.5, 2.0, 3), valid=valid))
+    par = Parametrization(family, 3)
+    batch = initial_guesses(tables, par)
+    for i, t in enumerate(tables):
+        one = initial_guess(t, par)
+        assert set(one) == set(batch)
+        for k in one:
+            np.testing.assert_allclose(batch[k][i], one[k], rtol=1e-12)

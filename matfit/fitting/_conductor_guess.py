@@ -32,6 +32,30 @@ _MIN_RELATIVE = 1e-3
 _BIN_DEG = 2.0
 #: A Fresnel curve is read only from at least _MIN_BINS bins holding _MIN_ROWS_PER_BIN rows each.
 _MIN_BINS, _MIN_ROWS_PER_BIN = 6, 8
+_N_BINS = int(90 / _BIN_DEG)
+
+
+def _theta_d_bins(wo, wi, v, valid):
+    """Rows that carry shape information and their ``theta_d`` bin, for arrays ``(..., N, 3)``,
+    ``(..., N, C)`` and a validity mask ``(..., N)``: ``(keep (..., N), bin index (..., N))``."""
+    mean = v.mean(axis=-1)
+    mmax = np.where(valid, mean, -np.inf).max(axis=-1, keepdims=True)
+    keep = (valid & (mean > _MIN_RELATIVE * mmax) & (wo[..., 2] > 1e-3) & (wi[..., 2] > 1e-3)
+            & np.all(v > 0, axis=-1))
+    h = wo + wi
+    h /= np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-12)
+    theta_d = np.degrees(np.arccos(np.clip(np.sum(wi * h, axis=-1), -1, 1)))
+    return keep, np.minimum((theta_d / _BIN_DEG).astype(int), _N_BINS - 1)
+
+
+def curve_readable(wo, wi, values, valid):
+    """Which of a stack of tables ``(B, N, ...)`` hold enough rows to read a Fresnel curve from
+    (:func:`conductor_guess` returns None for the others), computed for all at once."""
+    keep, bins = _theta_d_bins(wo, wi, values, valid)
+    B = keep.shape[0]
+    counts = np.zeros((B, _N_BINS), int)
+    np.add.at(counts, (np.broadcast_to(np.arange(B)[:, None], bins.shape)[keep], bins[keep]), 1)
+    return np.count_nonzero(counts >= _MIN_ROWS_PER_BIN, axis=1) >= _MIN_BINS
 
 
 def _microfacet_factor(wo, wi, h, alpha, distribution):
@@ -71,22 +95,21 @@ def conductor_guess(wo, wi, values, alpha0, distribution="ggx", eta_range=(0.05,
     >>> wo, wi = wo[ok], wi[ok]
     >>> f = np.asarray(RoughConductor(0.2, [0.3, 1.2, 2.5], [3.0, 5.0, 2.0]).eval(wo, wi))
     >>> a, eta, k = conductor_guess(wo, wi, f, alpha0=0.3)
-    >>> bool(abs(a - 0.2) < 0.02), bool(np.all(abs(eta - [0.3, 1.2, 2.5]) < [0.1, 0.2, 0.3]))
+    >>> bool(abs(a - 0.2) < 0.01), bool(np.all(abs(eta / [0.3, 1.2, 2.5] - 1) < 0.25))
     (True, True)
     """
     wo = np.asarray(wo, float)
     wi = np.asarray(wi, float)
     v = np.asarray(values, float).reshape(len(wo), -1)
+    keep, bins = _theta_d_bins(wo, wi, v, np.ones(len(wo), bool))
+    wo, wi, v = wo[keep], wi[keep], v[keep]
     mean = v.mean(axis=1)
-    keep = (mean > _MIN_RELATIVE * mean.max()) & (wo[:, 2] > 1e-3) & (wi[:, 2] > 1e-3) & np.all(v > 0, axis=1)
-    wo, wi, v, mean = wo[keep], wi[keep], v[keep], mean[keep]
+    uniq, inv, counts = np.unique(bins[keep], return_inverse=True, return_counts=True)
+    if np.count_nonzero(counts >= _MIN_ROWS_PER_BIN) < _MIN_BINS:
+        return None  # too sparse to read a Fresnel curve (e.g. a 32-row texel): keep the simple guess
     h = wo + wi
     h /= np.linalg.norm(h, axis=1, keepdims=True)
     theta_d = np.degrees(np.arccos(np.clip(np.sum(wi * h, axis=1), -1, 1)))
-    bins = np.minimum((theta_d / _BIN_DEG).astype(int), int(90 / _BIN_DEG) - 1)
-    uniq, inv, counts = np.unique(bins, return_inverse=True, return_counts=True)
-    if np.count_nonzero(counts >= _MIN_ROWS_PER_BIN) < _MIN_BINS:
-        return None  # too sparse to read a Fresnel curve (e.g. a 32-row texel): keep the simple guess
 
     def spread(m):
         """Mean squared within-bin deviation of log(f / m), per candidate alpha (rows of m)."""
