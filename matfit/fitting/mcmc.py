@@ -96,16 +96,14 @@ def _compiled(family, channels, fixed_items, tied, loss, noise):
     ls_lo, ls_hi = (math.log(b) for b in NOISE_SCALE_BOUNDS)
 
     def one(x, args):
-        wo, wi, values, weight, floor, pmask, pmean, psd = args
+        wo, wi, values, weight, floor, pmask, pmean, psd, logw_sum, n = args
         z = x[:p]
         usable = weight > 0
-        n = jnp.sum(usable)
         pred = par.model(z).eval(wo, wi)
         cos_i = wi[..., 2]
         if noise == "table":
             r = residuals(pred, values, weight, cos_i, loss)
-            logw = jnp.log(jnp.where(usable, weight, 1.0))
-            ll = -0.5 * jnp.sum(r * r) + 0.5 * jnp.sum(logw) - 0.5 * n * _LOG2PI
+            ll = -0.5 * jnp.sum(r * r) + 0.5 * logw_sum - 0.5 * n * _LOG2PI
             lp_noise = 0.0
         else:
             one_w = usable.astype(values.dtype)
@@ -259,8 +257,10 @@ def make_log_prob(table, model="plastic", fixed=None, tied=(), loss="l2", noise=
                 raise ParameterError(f"sample_posterior: noise_floor must be finite and > 0, got {noise_floor!r}")
     elif noise_floor is not None:
         raise ParameterError("sample_posterior: noise_floor is only used with noise='fit'")
+    # sum of log(1 / sigma^2) over the usable residuals: the same for every point, computed once
+    logw_sum = float(np.sum(np.log(weight[weight > 0])))
     args = (a.wo, a.wi, a.values, a.weight, jnp.asarray(floor, dt), jnp.asarray(pmask),
-            jnp.asarray(pmean, dt), jnp.asarray(psd, dt))
+            jnp.asarray(pmean, dt), jnp.asarray(psd, dt), jnp.asarray(logw_sum, dt), jnp.asarray(n_res, dt))
     lp = LogProb(par, batched, to_natural, args, noise, pdesc, block or 8, dt)
     lp.noise_floor = floor
     return lp
