@@ -5,8 +5,8 @@ pattern, as in SVBRDF capture), measured from a rough conductor with its own par
 (alpha in [0.1, 0.5], eta in [0.2, 2.5], k in [1, 5] per channel) and 2 % multiplicative noise.
 
 * matfit: ``fit_batch(tables, model="conductor", method="lm_fd")`` (one start per texel), the
-  batch split over every host device (``XLA_FLAGS=--xla_force_host_platform_device_count``, set
-  below before jax starts). Compile time (first call minus the warm median) apart, warm calls
+  batch on one CPU device unless ``XLA_FLAGS=--xla_force_host_platform_device_count=N`` is set
+  (one device already uses every core; see ``benchmarks/bench_cores.py``). Compile time (first call minus the warm median) apart, warm calls
   repeated. The time includes fit_batch's host work (stacking, data-driven starts).
 * baseline: ``scipy.optimize.least_squares`` (trf, 2-point Jacobian) on the numpy model
   (``benchmarks/_numpy_models.py``), one texel after another from the same starts, timed on the
@@ -24,7 +24,9 @@ import sys
 import time
 from pathlib import Path
 
-os.environ.setdefault("XLA_FLAGS", f"--xla_force_host_platform_device_count={os.cpu_count() or 1}")
+# One CPU device unless XLA_FLAGS says otherwise: it already runs large loops on every core, and
+# two host devices were measured no faster (benchmarks/bench_cores.py; batched fits stall on them).
+os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=1")
 
 import jax  # noqa: E402
 

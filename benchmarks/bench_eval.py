@@ -8,7 +8,7 @@ For each model, N direction pairs (default 10^6) are evaluated by
   numpy version in real arithmetic (the fastest numpy we could write) as a second baseline;
 * ``eval``: ``jax.jit(model.eval)`` on ``(N, 3)`` arrays on one device (the plain user path);
 * ``soa``: :func:`matfit.fast.eval_soa` (structure of arrays, one kernel per channel, the batch
-  split over every host device);
+  split over ``--devices`` host devices, default 1: one device already uses every core);
 * ``mitsuba``: Mitsuba 3's ``llvm_ad_rgb`` variant, ``BSDF.eval`` on the same directions and
   parameters (the cosine factor it includes is divided out for the value comparison), when
   ``mitsuba`` is installed; the best of a plain call and a ``drjit.freeze``-recorded call.
@@ -20,10 +20,10 @@ compared too: float32 vs float64, soa vs eval, numpy and Mitsuba vs matfit float
 difference over the entries above 1e-6 of the largest value).
 
     python benchmarks/bench_eval.py [--n 1000000] [--repeat 7] [--models conductor_ggx,lambert]
-                                    [--devices 2] [--no-mitsuba] [--out benchmarks/results/bench_eval.json]
+                                    [--devices 1] [--no-mitsuba] [--out benchmarks/results/bench_eval.json]
 
 The host device count must be fixed before JAX starts, so it is set from ``--devices`` (default:
-every core) at the top of ``main``.
+1, see ``benchmarks/bench_cores.py``) at the top of ``main``.
 """
 from __future__ import annotations
 
@@ -254,7 +254,8 @@ def main(argv=None):
     ap.add_argument("--n", type=int, default=1_000_000)
     ap.add_argument("--repeat", type=int, default=7)
     ap.add_argument("--models", default="all", help="comma-separated names, or 'all'")
-    ap.add_argument("--devices", type=int, default=os.cpu_count() or 1, help="host devices (CPU cores) to split over")
+    ap.add_argument("--devices", type=int, default=1,
+                    help="host devices to split over (1: one device already uses every core)")
     ap.add_argument("--no-mitsuba", action="store_true")
     ap.add_argument("--numpy-n", type=int, default=None, help="pairs for the numpy baselines (default: --n)")
     ap.add_argument("--out", default=str(HERE / "results" / "bench_eval.json"))

@@ -6,9 +6,9 @@ surrogates written by ``shared/tools/merl_surrogate.py``) the whole table is fit
 cell (about 1.1 million, RGB: 3.3 million residuals) with the E2 loss of Löw et al. 2012,
 ``r = log(1 + f cos_i) - log(1 + y cos_i)``.
 
-* matfit: ``fit(table, model, method="lm_fd", starts=1)`` in float64 and in float32 (the rows
-  split over every host device, ``XLA_FLAGS=--xla_force_host_platform_device_count``, set below
-  before jax starts). Compile time (first call minus the warm median) apart; the warm calls are
+* matfit: ``fit(table, model, method="lm_fd", starts=1)`` in float64 and in float32 (one CPU
+  device unless ``XLA_FLAGS=--xla_force_host_platform_device_count=N`` is set: one device
+  already uses every core, see ``benchmarks/bench_cores.py``). Compile time (first call minus the warm median) apart; the warm calls are
   repeated (``--repeats``). The time is the whole ``fit`` call: solve, covariance, diagnostics.
 * scipy: ``least_squares(method="trf", jac="2-point")`` (its default finite-difference Jacobian,
   one evaluation per parameter) on ``benchmarks/_numpy_models.py``, from the same start
@@ -31,7 +31,9 @@ import sys
 import time
 from pathlib import Path
 
-os.environ.setdefault("XLA_FLAGS", f"--xla_force_host_platform_device_count={os.cpu_count() or 1}")
+# One CPU device unless XLA_FLAGS says otherwise: it already runs large loops on every core, and
+# two host devices were measured no faster (benchmarks/bench_cores.py; batched fits stall on them).
+os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=1")
 
 import jax  # noqa: E402
 

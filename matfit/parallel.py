@@ -1,11 +1,16 @@
-"""Spread a batch of independent evaluations over every device: host CPU cores or GPUs.
+"""Spread a batch of independent evaluations over every device: GPUs, or host CPU devices.
 
-XLA's CPU backend runs one fused loop on one core. To use the other cores, JAX must expose them
-as separate *host devices* (set before the backend starts, see :func:`use_host_devices`); a batch
-laid out along its first axis with :func:`batch_sharding` is then split into one contiguous block
-per device, and every jitted elementwise function of it runs on all devices at once (the
-sharding propagates through ``jax.jit``). The same code runs unchanged on one device, on several
-host devices and on GPUs.
+A batch laid out along its first axis with :func:`batch_sharding` is split into one contiguous
+block per device, and every jitted elementwise function of it runs on all devices (the sharding
+propagates through ``jax.jit``). The same code runs unchanged on one device, on several host
+devices and on GPUs.
+
+On a CPU, measure before splitting (``benchmarks/bench_cores.py``): with jax 0.10.2 one CPU
+device already runs a large fused loop on every core (a compute-bound kernel is 2.0x faster
+with both cores allowed than pinned to one), while two *host devices* (:func:`use_host_devices`)
+run their blocks one after the other on this machine (1.08x for that kernel, 0.84x for
+``matfit.fast.eval_soa``). So the default is one CPU device; host devices are for the cases
+where a measurement shows a gain, and for testing the multi-device code path.
 
 Examples
 --------
