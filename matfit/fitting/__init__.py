@@ -1,13 +1,13 @@
 """Fitting model families to measurement tables: parameters, losses, solvers, uncertainty."""
 
-from .fit import METHODS, FitError, FitResult, fit, fit_batch, initial_guess
+from .fit import METHODS, FitError, FitResult, fit, fit_batch, initial_guess, initial_guesses
 from .losses import LOSSES, residuals
 from .params import FAMILIES, Family, Param, Parametrization, get_family
 
 __all__ = [
     "FAMILIES", "Family", "Param", "Parametrization", "get_family",
     "LOSSES", "residuals",
-    "METHODS", "FitError", "FitResult", "fit", "fit_batch", "initial_guess",
+    "METHODS", "FitError", "FitResult", "fit", "fit_batch", "initial_guess", "initial_guesses",
 ]
 from .mcmc import NOISE_MODES, LogProb, PosteriorResult, SamplingError, make_log_prob, sample_posterior
 

@@ -222,6 +222,16 @@ def initial_guesses(tables, par: Parametrization):
     -------
     dict
         Parameter name -> array with a leading table axis ``(B,)`` or ``(B, C)``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit import Table
+    >>> from matfit.fitting import Parametrization, initial_guesses
+    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]]); wi = wo[::-1].copy()
+    >>> tables = [Table(wo=wo, wi=wi, values=np.full((2, 3), a)) for a in (0.1, 0.2)]
+    >>> initial_guesses(tables, Parametrization("lambert", 3))["albedo"].shape
+    (2, 3)
     """
     V = np.stack([np.asarray(t.values, float) for t in tables])
     M = np.stack([np.asarray(t.valid, bool) for t in tables])
@@ -345,7 +355,8 @@ def fit(table, model="plastic", method="lm", loss="l2", robust=None, robust_scal
     fixed : dict, optional
         Parameters held at given values.  tied : per-channel parameters shared by all channels.
     starts : int
-        Number of starts: the data-driven guess plus ``starts - 1`` perturbed copies.
+        Number of starts: the data-driven guess plus the ``starts - 1`` best of ``8 (starts - 1)``
+        screened candidates (see :func:`fit_starts`).
     init : dict, optional
         Starting values replacing the data-driven guess.
 
