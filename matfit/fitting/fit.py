@@ -22,7 +22,7 @@ from ..table import Table
 from ._conductor_guess import conductor_guess, curve_readable
 from .diagnostics import diagnose
 from .lm import column_groups, jacobian, lm_fd
-from .losses import check_loss, residuals
+from .losses import check_loss, prepare_targets, residuals_from_targets
 from .params import Parametrization, check_solver_options
 
 METHODS = ("lm", "gn", "dogleg", "bfgs", "lbfgs", "jaxopt_lm", "lm_fd")
@@ -89,13 +89,28 @@ class FitResult:
 
 
 # --------------------------------------------------------------------------------------------
-def _residual_fn(par, loss, robust, scale):
-    def fn(z, arrays):
-        wo, wi, values, weight = arrays
-        pred = par.model(z).eval(wo, wi)
-        return residuals(pred, values, weight, wi[..., 2], loss, robust, scale).reshape(-1)
+def _prepared_residual_fn(par, loss, robust, scale):
+    """``(prepare, fn)``: ``prepare(arrays)`` turns a table's ``(wo, wi, values, weight)`` into
+    ``(wo, wi, target, factor)`` once (:func:`~matfit.fitting.losses.prepare_targets`: the loss's
+    transform of the data and the residual weights), and ``fn(z, prepared)`` is the flat residual
+    vector at ``z`` -- inside a solver's loop only the model's part is recomputed."""
 
-    return fn
+    def prepare(arrays):
+        wo, wi, values, weight = arrays
+        return (wo, wi) + tuple(prepare_targets(values, weight, wi[..., 2], loss))
+
+    def fn(z, prepared):
+        wo, wi, target, factor = prepared
+        pred = par.model(z).eval(wo, wi)
+        return residuals_from_targets(pred, target, factor, wi[..., 2], loss, robust, scale).reshape(-1)
+
+    return prepare, fn
+
+
+def _residual_fn(par, loss, robust, scale):
+    """Flat residuals ``fn(z, (wo, wi, values, weight))`` (the data prepared at every call)."""
+    prepare, fn = _prepared_residual_fn(par, loss, robust, scale)
+    return lambda z, arrays: fn(z, prepare(arrays))
 
 
 def _split_rows(arrays):
@@ -147,20 +162,23 @@ def _solve_one(fn, method, z0, arrays, max_steps, rtol, atol, groups=None):
 def _solver(family, channels, fixed_items, tied, method, loss, robust, scale, max_steps, rtol, atol):
     """Compiled multi-start solver for one configuration (cached: no recompilation)."""
     par = Parametrization(family, channels, dict(fixed_items), tied)
-    fn = _residual_fn(par, loss, robust, scale)
+    prepare, fn = _prepared_residual_fn(par, loss, robust, scale)
     groups = column_groups(par)
 
     def run(z0s, arrays):
+        arrays = prepare(arrays)  # once, outside the solver's loop
         z, steps, ok = jax.vmap(lambda z0: _solve_one(fn, method, z0, arrays, max_steps, rtol, atol, groups))(z0s)
         r = jax.vmap(lambda zz: fn(zz, arrays))(z)
         obj = 0.5 * jnp.sum(r * r, axis=-1)
         return z, obj, steps, ok
 
     def objective(zs, arrays):
+        arrays = prepare(arrays)
         r = jax.vmap(lambda zz: fn(zz, arrays))(zs)
         return 0.5 * jnp.sum(r * r, axis=-1)
 
     def jac(z, arrays):
+        arrays = prepare(arrays)
         if method == "lm_fd":  # the solver's own Jacobian: grouped differences, no forward-mode AD
             r, J = jacobian(_by_channel(fn), z, arrays, *groups)
             return r.reshape(-1), J.reshape(-1, z.shape[-1])

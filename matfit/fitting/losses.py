@@ -49,6 +49,8 @@ def residuals(pred, values, weight, cos_i, loss="l2", robust=None, scale=1.0):
     """Residual vector (N, C) for predictions ``pred`` against ``values``.
 
     ``weight`` (N, C) is zero on invalid rows (see :meth:`matfit.Table.effective_weight`).
+    The same as ``residuals_from_targets(pred, *prepare_targets(values, weight, cos_i, loss),
+    cos_i, loss, robust, scale)``: a fit prepares the data's part once.
 
     Examples
     --------
@@ -69,19 +71,56 @@ def residuals(pred, values, weight, cos_i, loss="l2", robust=None, scale=1.0):
     if robust is not None and not isinstance(scale, jax.core.Tracer) and not (np.all(np.isfinite(scale))
                                                                            and np.all(np.asarray(scale) > 0)):
         raise ParameterError(f"residuals: scale must be finite and > 0 for robust={robust!r}, got {scale!r}")
-    sw = safe_sqrt(weight)
-    c = cos_i[..., None]
-    if loss == "l2":
-        r = pred - values
-    elif loss == "e2":
-        r = jnp.log1p(jnp.maximum(pred * c, -0.999)) - jnp.log1p(jnp.maximum(values * c, -0.999))
-    elif loss == "cosine":
-        r = (pred - values) * c
+    target, factor = prepare_targets(values, weight, cos_i, loss)
+    return residuals_from_targets(pred, target, factor, cos_i, loss, robust, scale)
+
+
+def _transform(x, cos_i, loss):
+    """The map applied to predictions and measurements alike before they are differenced."""
+    if loss == "e2":
+        return jnp.log1p(jnp.maximum(x * cos_i[..., None], -0.999))
+    return x
+
+
+def prepare_targets(values, weight, cos_i, loss="l2"):
+    """The data's part of :func:`residuals`, computed once per table: ``(target, factor)`` with
+    ``r = factor * (T(pred) - target)`` (0 where ``factor`` is 0), ``T`` the loss's transform
+    (``log(1 + f cos_i)`` for ``"e2"``, identity otherwise) and ``factor`` ``sqrt(w)`` times the
+    loss's weight (``cos_i`` for ``"cosine"``, ``1 / (|y| + eps)`` for ``"relative"``); rows with
+    ``weight = 0`` get ``factor = 0`` and ``target = 0`` (NaN allowed there).
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit.fitting.losses import prepare_targets
+    >>> t, f = prepare_targets(jnp.array([[1.0]]), jnp.array([[4.0]]), jnp.array([0.5]), "cosine")
+    >>> float(t[0, 0]), float(f[0, 0])
+    (1.0, 1.0)
+    """
+    ok = weight > 0
+    sw = safe_sqrt(jnp.where(ok, weight, 0))
+    values = jnp.where(ok, values, 0)
+    if loss == "cosine":
+        sw = sw * cos_i[..., None]
     elif loss == "relative":
-        r = (pred - values) / (jnp.abs(values) + REL_EPS)
-    else:
+        sw = sw / (jnp.abs(values) + REL_EPS)
+    elif loss not in LOSSES:
         raise ParameterError(f"loss must be one of {list(LOSSES)}, got {loss!r}")
-    r = jnp.where(weight > 0, sw * r, 0)
+    return jnp.where(ok, _transform(values, cos_i, loss), 0), jnp.where(ok, sw, 0)
+
+
+def residuals_from_targets(pred, target, factor, cos_i, loss="l2", robust=None, scale=1.0):
+    """Residuals from data prepared by :func:`prepare_targets` (see :func:`residuals`).
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit.fitting.losses import prepare_targets, residuals_from_targets
+    >>> t, f = prepare_targets(jnp.array([[1.0]]), jnp.array([[4.0]]), jnp.array([1.0]))
+    >>> float(residuals_from_targets(jnp.array([[2.0]]), t, f, jnp.array([1.0]))[0, 0])
+    2.0
+    """
+    r = jnp.where(factor != 0, factor * (_transform(pred, cos_i, loss) - target), 0)
     if robust is None:
         return r
     a = jnp.abs(r) / scale
