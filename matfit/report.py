@@ -86,7 +86,7 @@ def loss_history(table, family, loss="l2", method="lm", starts=4, seed=0, max_st
     import optimistix as optx
 
     from .errors import ParameterError
-    from .fitting.fit import _residual_fn, _table_arrays, fit_starts
+    from .fitting.fit import _objective_fn, _prepared_residual_fn, _table_arrays, fit_starts
     from .fitting.losses import check_loss
     from .fitting.params import Parametrization
 
@@ -97,11 +97,15 @@ def loss_history(table, family, loss="l2", method="lm", starts=4, seed=0, max_st
     check_loss(loss, robust)
     par = Parametrization(family, table.n_channels, {k: np.atleast_1d(np.asarray(v, float)).tolist()
                                                      for k, v in (fixed or {}).items()}, tuple(tied))
-    fn = _residual_fn(par, loss, robust, float(robust_scale))
+    prepare, fn_nc = _prepared_residual_fn(par, loss, robust, float(robust_scale))
     arrays = _table_arrays(table, dtype)
     # the starts fit() runs (init replaces entries of the data-driven guess of start 0)
-    z0s = fit_starts(table, par, starts, seed, jax.jit(lambda zs, a: jax.vmap(
-        lambda z: 0.5 * jax.numpy.sum(fn(z, a) ** 2))(zs)), arrays, init)
+    z0s = fit_starts(table, par, starts, seed, jax.jit(_objective_fn(prepare, fn_nc)), arrays, init)
+    prepared = prepare(arrays)
+
+    def fn(z, args):
+        return fn_nc(z, args).reshape(-1)
+
     record = []
 
     def verbose(**kw):
@@ -120,7 +124,7 @@ def loss_history(table, family, loss="l2", method="lm", starts=4, seed=0, max_st
     out = []
     for z0 in z0s:
         record.clear()
-        final = float(solve(z0, arrays))
+        final = float(solve(z0, prepared))
         jax.effects_barrier()
         vals = [v for n, v in sorted(record) if n > 0]
         out.append(np.asarray(vals + [final], float))

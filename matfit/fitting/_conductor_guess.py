@@ -36,8 +36,9 @@ _N_BINS = int(90 / _BIN_DEG)
 
 
 def _theta_d_bins(wo, wi, v, valid):
-    """Rows that carry shape information and their ``theta_d`` bin, for arrays ``(..., N, 3)``,
-    ``(..., N, C)`` and a validity mask ``(..., N)``: ``(keep (..., N), bin index (..., N))``."""
+    """Rows that carry shape information, their half vector, ``theta_d`` (degrees) and its bin,
+    for arrays ``(..., N, 3)``, ``(..., N, C)`` and a validity mask ``(..., N)``:
+    ``(keep (..., N), h (..., N, 3), theta_d (..., N), bin index (..., N))``."""
     mean = v.mean(axis=-1)
     mmax = np.where(valid, mean, -np.inf).max(axis=-1, keepdims=True)
     keep = (valid & (mean > _MIN_RELATIVE * mmax) & (wo[..., 2] > 1e-3) & (wi[..., 2] > 1e-3)
@@ -45,13 +46,13 @@ def _theta_d_bins(wo, wi, v, valid):
     h = wo + wi
     h /= np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-12)
     theta_d = np.degrees(np.arccos(np.clip(np.sum(wi * h, axis=-1), -1, 1)))
-    return keep, np.minimum((theta_d / _BIN_DEG).astype(int), _N_BINS - 1)
+    return keep, h, theta_d, np.minimum((theta_d / _BIN_DEG).astype(int), _N_BINS - 1)
 
 
 def curve_readable(wo, wi, values, valid):
     """Which of a stack of tables ``(B, N, ...)`` hold enough rows to read a Fresnel curve from
     (:func:`conductor_guess` returns None for the others), computed for all at once."""
-    keep, bins = _theta_d_bins(wo, wi, values, valid)
+    keep, _, _, bins = _theta_d_bins(wo, wi, values, valid)
     B = keep.shape[0]
     counts = np.zeros((B, _N_BINS), int)
     np.add.at(counts, (np.broadcast_to(np.arange(B)[:, None], bins.shape)[keep], bins[keep]), 1)
@@ -101,15 +102,12 @@ def conductor_guess(wo, wi, values, alpha0, distribution="ggx", eta_range=(0.05,
     wo = np.asarray(wo, float)
     wi = np.asarray(wi, float)
     v = np.asarray(values, float).reshape(len(wo), -1)
-    keep, bins = _theta_d_bins(wo, wi, v, np.ones(len(wo), bool))
-    wo, wi, v = wo[keep], wi[keep], v[keep]
+    keep, h, theta_d, bins = _theta_d_bins(wo, wi, v, np.ones(len(wo), bool))
+    wo, wi, v, h, theta_d = wo[keep], wi[keep], v[keep], h[keep], theta_d[keep]
     mean = v.mean(axis=1)
     uniq, inv, counts = np.unique(bins[keep], return_inverse=True, return_counts=True)
     if np.count_nonzero(counts >= _MIN_ROWS_PER_BIN) < _MIN_BINS:
         return None  # too sparse to read a Fresnel curve (e.g. a 32-row texel): keep the simple guess
-    h = wo + wi
-    h /= np.linalg.norm(h, axis=1, keepdims=True)
-    theta_d = np.degrees(np.arccos(np.clip(np.sum(wi * h, axis=1), -1, 1)))
 
     def spread(m):
         """Mean squared within-bin deviation of log(f / m), per candidate alpha (rows of m)."""

@@ -92,9 +92,9 @@ class FitResult:
 def _prepared_residual_fn(par, loss, robust, scale):
     """``(prepare, fn)``: ``prepare(arrays)`` turns a table's ``(wo, wi, values, weight)`` into
     ``(wo, wi, target, factor)`` once (:func:`~matfit.fitting.losses.prepare_targets`: the loss's
-    transform of the data and the residual weights), and ``fn(z, prepared)`` is the flat residual
-    vector at ``z`` -- inside a solver's loop only the model's part is recomputed. ``fn`` returns
-    the residuals as ``(N, C)``, the layout the model writes: flattening them inside the same
+    transform of the data and the residual weights), and ``fn(z, prepared)`` are the residuals at
+    ``z`` -- inside a solver's loop only the model's part is recomputed. ``fn`` returns them as
+    ``(N, C)``, the layout the model writes: flattening them inside the same
     compiled function made XLA rewrite the model's loop (4x slower for a full MERL table)."""
 
     def prepare(arrays):
@@ -107,6 +107,18 @@ def _prepared_residual_fn(par, loss, robust, scale):
         return residuals_from_targets(pred, target, factor, wi[..., 2], loss, robust, scale)
 
     return prepare, fn
+
+
+def _objective_fn(prepare, fn):
+    """``objective(zs, arrays)``: ``0.5 |r|^2`` for a stack of ``z`` on raw table arrays (prepared
+    once per call), from the pair of :func:`_prepared_residual_fn`."""
+
+    def objective(zs, arrays):
+        prepared = prepare(arrays)
+        r = jax.vmap(lambda z: fn(z, prepared))(zs)
+        return 0.5 * jnp.sum(r * r, axis=tuple(range(1, r.ndim)))
+
+    return objective
 
 
 def _residual_fn(par, loss, robust, scale):
@@ -168,18 +180,12 @@ def _solver(family, channels, fixed_items, tied, method, loss, robust, scale, ma
     flat = lambda z, a: fn(z, a).reshape(-1)  # noqa: E731  (the optimistix and jaxopt solvers)
     solve_fn = fn if method == "lm_fd" else flat
     groups = column_groups(par)
-
-    def half_sq(r):
-        return 0.5 * jnp.sum(r * r, axis=(-2, -1))
+    objective = _objective_fn(prepare, fn)
 
     def run(z0s, arrays):
-        arrays = prepare(arrays)  # once, outside the solver's loop
-        z, steps, ok = jax.vmap(lambda z0: _solve_one(solve_fn, method, z0, arrays, max_steps, rtol, atol, groups))(z0s)
-        return z, half_sq(jax.vmap(lambda zz: fn(zz, arrays))(z)), steps, ok
-
-    def objective(zs, arrays):
-        arrays = prepare(arrays)
-        return half_sq(jax.vmap(lambda zz: fn(zz, arrays))(zs))
+        prepared = prepare(arrays)  # once, outside the solver's loop
+        z, steps, ok = jax.vmap(lambda z0: _solve_one(solve_fn, method, z0, prepared, max_steps, rtol, atol, groups))(z0s)
+        return z, objective(z, arrays), steps, ok
 
     def jac(z, arrays):
         arrays = prepare(arrays)
