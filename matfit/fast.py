@@ -33,7 +33,7 @@ from .models._base import AbstractBSDF
 from .models._coat import is_smooth
 from .parallel import shard_batch
 
-__all__ = ["SoAPairs", "soa_pairs", "eval_soa", "channel_model", "supports_soa", "SOA_MODELS"]
+__all__ = ["SoAPairs", "soa_pairs", "eval_soa", "eval_channel", "channel_model", "supports_soa", "SOA_MODELS"]
 
 #: Model classes whose ``eval`` accepts :class:`~matfit._math.Vec3` directions (Plastic: smooth coat only).
 SOA_MODELS = (Lambert, RoughConductor, Plastic)
@@ -147,8 +147,20 @@ def channel_model(model: AbstractBSDF, c: int) -> AbstractBSDF:
     return jax.tree_util.tree_map(pick, model)
 
 
-def _eval_channel(model, pairs, c):
-    """Channel ``c`` of ``model.eval`` on SoA pairs, with the direction-only quantities precomputed."""
+def eval_channel(model: AbstractBSDF, pairs: SoAPairs, c: int):
+    """Channel ``c`` of ``model.eval`` on SoA pairs, shape ``(n,)``, with the direction-only
+    quantities (half vector, Fresnel cosine) taken from ``pairs``. Only for models that
+    :func:`supports_soa` accepts; traced alone it is one single-output loop.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit.models import Lambert
+    >>> from matfit.fast import soa_pairs, eval_channel
+    >>> up = np.array([[0.0, 0.0, 1.0]])
+    >>> round(float(eval_channel(Lambert(np.array([0.8, 0.5, 0.2])), soa_pairs(up, up), 1)[0]) * np.pi, 6)
+    0.5
+    """
     mc = channel_model(model, c)
     if isinstance(mc, RoughConductor):
         f = mc.eval_half(pairs.wo, pairs.wi, pairs.h, pairs.cos_d)
@@ -161,7 +173,7 @@ def _eval_channel(model, pairs, c):
 def _soa_kernel(model, pairs):
     # One output per channel. XLA compiles each into its own loop over the batch and computes the
     # channel-independent part (D G / (4 cos cos) for a microfacet lobe) once, in a loop of its own.
-    return tuple(_eval_channel(model, pairs, c) for c in range(model.channels))
+    return tuple(eval_channel(model, pairs, c) for c in range(model.channels))
 
 
 @jax.jit

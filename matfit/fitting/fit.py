@@ -16,12 +16,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._math import Vec3, dot, normalize
 from ..errors import MatfitError, ParameterError
+from ..fast import SoAPairs, eval_channel, supports_soa
 from ..parallel import device_count, shard_batch
 from ..table import Table
 from ._conductor_guess import conductor_guess, curve_readable
 from .diagnostics import diagnose
-from .lm import column_groups, jacobian, lm_fd
+from .lm import GRAM_BLOCK, column_groups, jacobian, lm_fd
 from .losses import check_loss, prepare_targets, residuals_from_targets
 from .params import Parametrization, check_solver_options
 
@@ -109,6 +111,40 @@ def _prepared_residual_fn(par, loss, robust, scale):
     return prepare, fn
 
 
+def _split_residual_fn(par, loss, robust, scale):
+    """``(prepare, fn)`` like :func:`_prepared_residual_fn`, channel-split for :func:`lm_fd`.
+
+    ``prepare`` lays the table out once as :class:`~matfit.fast.SoAPairs` (component arrays,
+    half vector, Fresnel cosine: everything that depends only on the directions) and the
+    prepared targets as ``(C, n)``, padded to a multiple of :data:`~matfit.fitting.lm.GRAM_BLOCK`
+    rows (padding rows: normal incidence, weight 0, residual 0). ``fn(z, prepared)`` returns one
+    residual array ``(n,)`` per channel, each the single-output kernel of
+    :func:`matfit.fast.eval_channel`: for a full MERL table 4-5x faster than the ``(N, C)``
+    layout (``docs/performance.md``). Only for models :func:`matfit.fast.supports_soa` accepts.
+    """
+
+    def prepare(arrays):
+        wo, wi, values, weight = arrays
+        pad = (-wo.shape[0]) % GRAM_BLOCK
+        up = jnp.zeros((pad, 3), wo.dtype).at[:, 2].set(1)
+        wo, wi = jnp.concatenate([wo, up]), jnp.concatenate([wi, up])
+        values, weight = (jnp.concatenate([a, jnp.zeros((pad,) + a.shape[1:], a.dtype)]) for a in (values, weight))
+        target, factor = prepare_targets(values, weight, wi[:, 2], loss)
+        o, i = Vec3.from_array(wo), Vec3.from_array(wi)
+        h = normalize(Vec3(o.x + i.x, o.y + i.y, o.z + i.z))
+        return SoAPairs(o, i, h, dot(o, h), int(wo.shape[0])), target.T, factor.T
+
+    def fn(z, prepared):
+        pairs, target, factor = prepared
+        model = par.model(z)
+        return tuple(
+            residuals_from_targets(eval_channel(model, pairs, c)[:, None], target[c][:, None], factor[c][:, None],
+                                   pairs.wi.z, loss, robust, scale)[:, 0]
+            for c in range(target.shape[0]))
+
+    return prepare, fn
+
+
 def _objective_fn(prepare, fn):
     """``objective(zs, arrays)``: ``0.5 |r|^2`` for a stack of ``z`` on raw table arrays (prepared
     once per call), from the pair of :func:`_prepared_residual_fn`."""
@@ -149,7 +185,7 @@ def _solve_one(fn, method, z0, arrays, max_steps, rtol, atol, groups=None):
     import optimistix as optx
 
     if method == "lm_fd":
-        z, _, steps, ok, _, _ = lm_fd(_by_channel(fn), z0, arrays, *groups, max_steps=max_steps, rtol=rtol, atol=atol)
+        z, _, steps, ok, _, _ = lm_fd(fn, z0, arrays, *groups, max_steps=max_steps, rtol=rtol, atol=atol)
         return z, steps, ok
 
     def obj(z, args):
@@ -173,25 +209,36 @@ def _solve_one(fn, method, z0, arrays, max_steps, rtol, atol, groups=None):
 
 
 @functools.lru_cache(maxsize=64)
-def _solver(family, channels, fixed_items, tied, method, loss, robust, scale, max_steps, rtol, atol):
-    """Compiled multi-start solver for one configuration (cached: no recompilation)."""
+def _solver(family, channels, fixed_items, tied, method, loss, robust, scale, max_steps, rtol, atol, split=False):
+    """Compiled multi-start solver for one configuration (cached: no recompilation).
+
+    ``split``: ``lm_fd`` solves on channel-split residuals (:func:`_split_residual_fn`) when the
+    family's model supports them; single fits only (batched fits vmap the ``(N, C)`` form)."""
     par = Parametrization(family, channels, dict(fixed_items), tied)
     prepare, fn = _prepared_residual_fn(par, loss, robust, scale)  # fn: (N, C) residuals
     flat = lambda z, a: fn(z, a).reshape(-1)  # noqa: E731  (the optimistix and jaxopt solvers)
-    solve_fn = fn if method == "lm_fd" else flat
+    solve_prepare, solve_fn = prepare, (fn if method == "lm_fd" else flat)
+    split = split and method == "lm_fd" and supports_soa(par.model(jnp.zeros(par.size)))
+    if split:
+        solve_prepare, solve_fn = _split_residual_fn(par, loss, robust, scale)
     groups = column_groups(par)
     objective = _objective_fn(prepare, fn)
 
     def run(z0s, arrays):
-        prepared = prepare(arrays)  # once, outside the solver's loop
-        z, steps, ok = jax.vmap(lambda z0: _solve_one(solve_fn, method, z0, prepared, max_steps, rtol, atol, groups))(z0s)
+        prepared = solve_prepare(arrays)  # once, outside the solver's loop
+        solve = lambda z0: _solve_one(solve_fn, method, z0, prepared, max_steps, rtol, atol, groups)  # noqa: E731
+        if z0s.shape[0] == 1:  # one start: no vmap, which would batch the model's loops
+            z, steps, ok = (x[None] for x in solve(z0s[0]))
+        else:
+            z, steps, ok = jax.vmap(solve)(z0s)
         return z, objective(z, arrays), steps, ok
 
     def jac(z, arrays):
-        arrays = prepare(arrays)
+        n = arrays[0].shape[0]
+        arrays = solve_prepare(arrays)
         if method == "lm_fd":  # the solver's own Jacobian: grouped differences, no forward-mode AD
-            r, J = jacobian(_by_channel(fn), z, arrays, *groups)
-            return r.reshape(-1), J.reshape(-1, z.shape[-1])
+            r, J = jacobian(solve_fn if split else _by_channel(fn), z, arrays, *groups)
+            return r[:n].reshape(-1), J[:n].reshape(-1, z.shape[-1])
         return flat(z, arrays), jax.jacfwd(flat)(z, arrays)
 
     return par, jax.jit(run), jax.jit(jac), jax.jit(objective)
@@ -418,7 +465,7 @@ def fit(table, model="plastic", method="lm", loss="l2", robust=None, robust_scal
     C = table.n_channels
     fixed_items = tuple(sorted((k, tuple(np.atleast_1d(np.asarray(v, float)).tolist())) for k, v in (fixed or {}).items()))
     par, run, jac, objective = _solver(model, C, fixed_items, tuple(tied), method, loss, robust, float(robust_scale),
-                            int(max_steps), float(rtol), float(atol))
+                                       int(max_steps), float(rtol), float(atol), device_count() == 1)
     n_res = int(np.count_nonzero(table.effective_weight()))
     if n_res <= par.size:
         raise FitError(f"fit: the table has {n_res} usable residuals for {par.size} free parameters "

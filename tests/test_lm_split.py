@@ -1,0 +1,97 @@
+"""Channel-split residuals for lm_fd (one single-output kernel per colour channel), the blocked
+Gram reductions, and the solver's step cap.
+
+Checked against the (N, C) path they replace (same residuals, same normal equations), against
+numpy's X X^T, and against a one-parameter problem whose Gauss-Newton step is known in closed form.
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from matfit.fitting.fit import _prepared_residual_fn, _solver, _split_residual_fn, _table_arrays, initial_guess
+from matfit.fitting.lm import GRAM_BLOCK, _gram, column_groups, jacobian, lm_fd, normal_equations
+from matfit.fitting.params import Parametrization
+
+from test_fit_lm_fd import _table
+
+
+@pytest.mark.parametrize("m, n", [(4, 3 * GRAM_BLOCK), (3, 1000)])  # blocked, and the plain fallback
+def test_gram_equals_numpy(m, n, x64):
+    X = np.random.default_rng(0).normal(size=(m, n))
+    G = np.asarray(_gram([jnp.asarray(x) for x in X]))
+    np.testing.assert_allclose(G, X @ X.T, rtol=1e-12)
+
+
+@pytest.mark.parametrize("family, loss", [("conductor", "e2"), ("lambert", "l2"), ("conductor_beckmann", "cosine")])
+def test_split_residuals_equal_interleaved(family, loss, x64):
+    t = _table(n=700)  # pads to 1024 rows: two Gram blocks
+    par = Parametrization(family, 3)
+    z = jnp.asarray(np.random.default_rng(2).normal(0, 0.5, par.size))
+    arrays = _table_arrays(t, jnp.float64)
+    prep, fn = _prepared_residual_fn(par, loss, None, 1.0)
+    sprep, sfn = _split_residual_fn(par, loss, None, 1.0)
+    r = np.asarray(fn(z, prep(arrays)))
+    rs = np.stack([np.asarray(x) for x in sfn(z, sprep(arrays))], axis=-1)
+    assert rs.shape == (2 * GRAM_BLOCK, 3)
+    np.testing.assert_allclose(rs[:700], r, rtol=1e-12, atol=1e-15)
+    assert np.all(rs[700:] == 0)  # padding rows add nothing
+
+
+@pytest.mark.parametrize("central", [False, True])
+def test_split_normal_equations_equal_interleaved(central, x64):
+    t = _table(n=700)
+    par = Parametrization("conductor", 3)
+    groups = column_groups(par)
+    z = jnp.asarray(np.random.default_rng(3).normal(0, 0.5, par.size))
+    arrays = _table_arrays(t, jnp.float64)
+    prep, fn = _prepared_residual_fn(par, "e2", None, 1.0)
+    sprep, sfn = _split_residual_fn(par, "e2", None, 1.0)
+    F, A, g, _ = normal_equations(fn, z, prep(arrays), *groups, central=central)
+    Fs, As, gs, rs = normal_equations(sfn, z, sprep(arrays), *groups, central=central)
+    assert isinstance(rs, tuple) and len(rs) == 3
+    np.testing.assert_allclose(float(Fs), float(F), rtol=1e-12)
+    # The two layouts round differently; forward differences (h ~ 1e-8) turn that into ~1e-8.
+    tol = 1e-9 if central else 1e-6
+    np.testing.assert_allclose(np.asarray(As), np.asarray(A), rtol=tol, atol=tol * 1e-3 * np.abs(A).max())
+    np.testing.assert_allclose(np.asarray(gs), np.asarray(g), rtol=tol, atol=tol * 1e-3 * np.abs(g).max())
+    # The covariance Jacobian stacks the channels back to (n, C, p).
+    r_j, J = jacobian(sfn, z, sprep(arrays), *groups, central=central)
+    assert r_j.shape == (2 * GRAM_BLOCK, 3) and J.shape == (2 * GRAM_BLOCK, 3, par.size)
+    np.testing.assert_allclose(np.einsum("ncp,ncq->pq", J, J), np.asarray(As), rtol=tol, atol=tol * 1e-3 * np.abs(A).max())
+
+
+def test_split_solver_reaches_interleaved_solution(x64):
+    """fit's single-table solver (channel-split) and the (N, C) solver fit_batch uses end at the
+    same objective from the same start."""
+    t = _table(n=600, noise=0.01)
+    par = Parametrization("conductor", 3)
+    arrays = _table_arrays(t, jnp.float64)
+    z0 = jnp.asarray(par.z_from_theta(initial_guess(t, par)))[None]
+    out = {}
+    for split in (False, True):
+        _, run, _, _ = _solver("conductor", 3, (), (), "lm_fd", "e2", None, 1.0, 128, 1e-10, 1e-12, split)
+        z, obj, steps, ok = run(z0, arrays)
+        assert bool(ok[0])
+        out[split] = float(obj[0])
+    assert abs(out[True] - out[False]) <= 1e-9 * out[False]
+
+
+def _saturating(z, args):
+    """r = sigmoid(z) - 1.2: the optimum lies beyond sigmoid's range (z -> inf)."""
+    return (jax.nn.sigmoid(z[0]) - 1.2) * jnp.ones((4, 1))
+
+
+@pytest.mark.parametrize("cap", [3.0, 1.0])
+def test_step_cap(cap, x64):
+    seeds, owner = np.ones((1, 1)), np.ones((1, 1))
+    z0 = jnp.array([0.0])
+    # Unlimited, the first Gauss-Newton step from z = 0 is (1.2 - 0.5) / sigmoid'(0) = 0.7 / 0.25 = 2.8.
+    z_free = lm_fd(_saturating, z0, None, seeds, owner, max_steps=1, max_step=np.inf, tau=1e-12)[0]
+    assert float(z_free[0]) == pytest.approx(2.8, rel=1e-6)
+    z1 = lm_fd(_saturating, z0, None, seeds, owner, max_steps=1, max_step=cap, tau=1e-12)[0]
+    assert float(z1[0]) == pytest.approx(min(cap, 2.8), rel=1e-6)
+    # Many capped steps still make progress towards the bound, at most `cap` per step.
+    z5, F5, steps = lm_fd(_saturating, z0, None, seeds, owner, max_steps=5, max_step=cap)[:3]
+    assert 0 < float(z5[0]) <= 5 * cap + 1e-9 and int(steps) == 5
