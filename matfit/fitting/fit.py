@@ -23,7 +23,7 @@ from ..parallel import device_count, shard_batch
 from ..table import Table
 from ._conductor_guess import conductor_guess, curve_readable
 from .diagnostics import diagnose
-from .lm import GRAM_BLOCK, column_groups, jacobian, lm_fd
+from .lm import GRAM_BLOCK, column_groups, lm_fd, normal_equations
 from .losses import check_loss, prepare_targets, residuals_from_targets
 from .params import Parametrization, check_solver_options
 
@@ -233,15 +233,18 @@ def _solver(family, channels, fixed_items, tied, method, loss, robust, scale, ma
             z, steps, ok = jax.vmap(solve)(z0s)
         return z, objective(z, arrays), steps, ok
 
-    def jac(z, arrays):
+    def gram(z, arrays):
+        """Residuals (N * C,) and J^T J (p, p) at z (summed in float64 when x64 is on)."""
         n = arrays[0].shape[0]
         arrays = solve_prepare(arrays)
         if method == "lm_fd":  # the solver's own Jacobian: grouped differences, no forward-mode AD
-            r, J = jacobian(solve_fn if split else _by_channel(fn), z, arrays, *groups)
-            return r[:n].reshape(-1), J[:n].reshape(-1, z.shape[-1])
-        return flat(z, arrays), jax.jacfwd(flat)(z, arrays)
+            _, A, _, r = normal_equations(solve_fn, z, arrays, *groups, central=z.dtype == jnp.float32, wide=True)
+            r = jnp.stack(r, axis=-1) if split else r
+            return r[:n].reshape(-1), A
+        J = jax.jacfwd(flat)(z, arrays).astype(jnp.promote_types(z.dtype, jnp.float64))
+        return flat(z, arrays), J.T @ J
 
-    return par, jax.jit(run), jax.jit(jac), jax.jit(objective)
+    return par, jax.jit(run), jax.jit(gram), jax.jit(objective)
 
 
 # --------------------------------------------------------------------------------------------
@@ -464,7 +467,7 @@ def fit(table, model="plastic", method="lm", loss="l2", robust=None, robust_scal
     Parametrization(model, table.n_channels, fixed, tied).check_theta("fit: init", {} if init is None else init)
     C = table.n_channels
     fixed_items = tuple(sorted((k, tuple(np.atleast_1d(np.asarray(v, float)).tolist())) for k, v in (fixed or {}).items()))
-    par, run, jac, objective = _solver(model, C, fixed_items, tuple(tied), method, loss, robust, float(robust_scale),
+    par, run, gram, objective = _solver(model, C, fixed_items, tuple(tied), method, loss, robust, float(robust_scale),
                                        int(max_steps), float(rtol), float(atol), device_count() == 1)
     n_res = int(np.count_nonzero(table.effective_weight()))
     if n_res <= par.size:
@@ -483,20 +486,22 @@ def fit(table, model="plastic", method="lm", loss="l2", robust=None, robust_scal
     zb = z[best]
     # Uncertainty: Gauss-Newton covariance in the natural parameters (chain rule through the
     # element-wise transform), scaled by the residual variance unless the table carries sigma.
-    r_best, J = (np.asarray(x)[:n_rows] for x in jac(zb, _split_rows(arrays)))
+    r_best, A = gram(zb, _split_rows(arrays))
+    r_best = np.asarray(r_best)[:n_rows]
     dtheta = np.asarray(jax.jacfwd(par.theta_vector)(zb)).diagonal()
-    Jt = J / np.where(dtheta != 0, dtheta, np.inf)
+    inv_d = 1 / np.where(dtheta != 0, dtheta, np.inf)
+    At = np.asarray(A, float) * np.outer(inv_d, inv_d)  # J^T J in the natural parameters
     rss = float(2 * obj[best])
     dof = n_res - par.size
     s2 = 1.0 if (table.sigma is not None and loss == "l2" and robust is None) else rss / max(dof, 1)
-    cov = s2 * np.linalg.pinv(Jt.T @ Jt)
+    cov = s2 * np.linalg.pinv(At)
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
     values = np.asarray(par.theta_vector(zb))
     lower, upper = par.lower_upper()
     sw = np.sqrt(np.asarray(arrays[3], float))
     data_scale = float(np.sqrt(np.mean((sw * np.asarray(arrays[2], float)) ** 2)))
     notes, unident = diagnose(
-        labels=par.labels, values=values, stderr=se, lower=lower, upper=upper, Jt=Jt, residuals=r_best,
+        labels=par.labels, values=values, stderr=se, lower=lower, upper=upper, gram=At, residuals=r_best,
         converged=bool(np.asarray(ok)[best]), steps=int(np.asarray(steps)[best]), max_steps=int(max_steps),
         known_sigma=table.sigma is not None and loss == "l2" and robust is None, dof=n_res - par.size,
         data_scale=data_scale, start_values=np.asarray(par.theta_vector(z)), start_objectives=obj, best=best)

@@ -144,7 +144,12 @@ def _gram(xs):
     return jnp.stack([jnp.stack([v[min(i, j), max(i, j)] for j in range(m)]) for i in range(m)])
 
 
-def _channel_moments(fn, z, args, seeds, owner, central, r):
+def _wide(x):
+    """``x`` in float64 when x64 is on (else unchanged): for moments read by covariances."""
+    return x.astype(jnp.promote_types(x.dtype, jnp.float64)) if jax.config.read("jax_enable_x64") else x
+
+
+def _channel_moments(fn, z, args, seeds, owner, central, r, wide=False):
     """Channel-split residuals (a tuple of C arrays (n,)): ``M`` (C, G, G), ``v`` (C, G), ``E``, ``r``.
 
     The G perturbed points are evaluated one after the other (no vmap: each channel stays one
@@ -164,7 +169,8 @@ def _channel_moments(fn, z, args, seeds, owner, central, r):
         K.append(tuple(a - b for a, b in zip(plus, base)))
     K, r = jax.lax.optimization_barrier((K, tuple(r)))
     G = len(K)
-    P = jnp.stack([_gram([Kg[c] for Kg in K] + [r[c]]) for c in range(len(r))])
+    cast = _wide if wide else (lambda x: x)
+    P = jnp.stack([_gram([cast(Kg[c]) for Kg in K] + [cast(r[c])]) for c in range(len(r))])
     return P[:, :G, :G], P[:, :G, G], _group_map(seeds, owner, h, central), r
 
 
@@ -173,20 +179,24 @@ def _split(r):
     return isinstance(r, (tuple, list))
 
 
-def normal_equations(fn, z, args, seeds, owner, central=False, r=None, F=None):
+def normal_equations(fn, z, args, seeds, owner, central=False, r=None, F=None, wide=False):
     """``(F, J^T J, J^T r, r)`` at ``z`` for residuals ``fn(z, args)``.
 
     The residuals are one array (N, C), or a tuple of ``C`` arrays (n,) (one per colour channel:
     the channel-split layout of :mod:`matfit.fast`, which XLA compiles into single-output loops).
     ``F = 0.5 |r|^2``; the Jacobian is the grouped forward (or central) difference of the module
-    docstring. ``r`` (and ``F``) may be passed when already known at ``z``.
+    docstring. ``r`` (and ``F``) may be passed when already known at ``z``. ``wide``: the
+    moments are summed in float64 (when x64 is on) and ``A``, ``g`` returned so, for covariances.
     """
     if _split(r if r is not None else jax.eval_shape(fn, z, args)):
-        M, v, E, r = _channel_moments(fn, z, args, seeds, owner, central, r)
+        M, v, E, r = _channel_moments(fn, z, args, seeds, owner, central, r, wide)
     else:
         K, E, r = _differences(fn, z, args, seeds, owner, central, r)
-        M = jnp.einsum("gnc,hnc->cgh", K, K)
-        v = jnp.einsum("gnc,nc->cg", K, r)
+        Kw, rw = (_wide(K), _wide(r)) if wide else (K, r)
+        M = jnp.einsum("gnc,hnc->cgh", Kw, Kw)
+        v = jnp.einsum("gnc,nc->cg", Kw, rw)
+    if wide:
+        E = _wide(E)
     A = jnp.einsum("cgp,cgh,chq->pq", E, M, E)
     g = jnp.einsum("cgp,cg->p", E, v)
     return (_half_sq(r) if F is None else F), A, g, r
