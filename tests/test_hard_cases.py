@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 jax.config.update("jax_enable_x64", True)
@@ -574,6 +574,8 @@ def test_property_smooth_dielectric(eta, d, u):
 
 @PROP
 @given(albedo=rgb, eta=st.one_of(st.sampled_from([1.0, 1 + 1e-6, 1.0001, 4.0]), st.floats(1.0, 4.0)), d=dirs, u=u_st)
+@example(albedo=[0.0, 0.0, 0.0], eta=1.0, d=([0.0] * NP, [0.0] * (NP - 1) + [1.175494351e-38], [0.0] * NP),
+         u=[(0.0, 0.0, 0.0)] * NP)  # found by hypothesis: a grazing wo and a wi one float32 normal above the horizon
 def test_property_plastic_smooth(albedo, eta, d, u):
     _check_prop(Plastic(np.asarray(albedo, HDT), 0.0, HDT(eta)), *_dirs(d), u)
 
@@ -581,6 +583,8 @@ def test_property_plastic_smooth(albedo, eta, d, u):
 @PROP
 @given(albedo=rgb, alpha=st.one_of(st.sampled_from([1e-8, 1e-4, 2.0]), st.floats(1e-6, 2.0)),
        eta=st.one_of(st.sampled_from([1.0, 1.0001, 4.0]), st.floats(1.0, 3.0)), d=dirs, u=u_st)
+@example(albedo=[0.0, 0.0, 0.0], alpha=0.5, eta=1.0, d=([0.0] * NP, [0.0] * (NP - 1) + [1.175494351e-38], [0.0] * NP),
+         u=[(0.0, 0.0, 0.0)] * NP)  # found by hypothesis: a grazing wo and a wi one float32 normal above the horizon
 def test_property_plastic_rough(albedo, alpha, eta, d, u):
     _check_prop(Plastic(np.asarray(albedo, HDT), HDT(alpha), HDT(eta)), *_dirs(d), u)
 

@@ -40,7 +40,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._math import COS_EPS, cosine_hemisphere, safe_div
+from .._math import COS_EPS, cosine_hemisphere, safe_div, where_up
 from ._coated import AbstractCoatedBSDF
 from ._coat import coat_internal_reflectance, coat_reflection, coat_transmittance, is_smooth, make_coat
 from ._params import as_channels, check_directions, check_range, check_u
@@ -94,6 +94,9 @@ class Plastic(AbstractCoatedBSDF):
 
     def _eval_t(self, wo, wi, table):
         ok = (wo[..., 2] > COS_EPS) & (wi[..., 2] > COS_EPS)
+        # double where: pairs at or below the horizon are evaluated at the normal (finite gradients
+        # for directions a denormal above it)
+        wo, wi = where_up(ok, wo), where_up(ok, wi)
         f = coat_reflection(self.coat, wo, wi)[..., None] + self._diffuse(wo, wi, table)
         return jnp.where(ok[..., None], f, 0)
 
