@@ -33,7 +33,7 @@ from .models._base import AbstractBSDF
 from .models._coat import is_smooth
 from .parallel import shard_batch
 
-__all__ = ["SoAPairs", "soa_pairs", "eval_soa", "eval_channel", "channel_model", "supports_soa", "SOA_MODELS"]
+__all__ = ["SoAPairs", "soa_pairs", "eval_soa", "eval_channel", "half_vector", "channel_model", "supports_soa", "SOA_MODELS"]
 
 #: Model classes whose ``eval`` accepts :class:`~matfit._math.Vec3` directions (Plastic: smooth coat only).
 SOA_MODELS = (Lambert, RoughConductor, Plastic)
@@ -99,12 +99,24 @@ def soa_pairs(wo, wi, dtype=None, devices=None) -> SoAPairs:
     comps = tuple(np.ascontiguousarray(a[:, j], dtype=dtype) for a in (wo, wi) for j in range(3))
     sharded, n = shard_batch(comps, devices)
     wo, wi = Vec3(*sharded[:3]), Vec3(*sharded[3:])
-    h, cos_d = _half_vector(wo, wi)
+    h, cos_d = half_vector(wo, wi)
     return SoAPairs(wo, wi, h, cos_d, n)
 
 
 @jax.jit
-def _half_vector(wo, wi):
+def half_vector(wo, wi):
+    """``(h, cos_d)``: the reflection half vector ``normalize(wo + wi)`` and ``wo . h``, the two
+    direction-only quantities :class:`SoAPairs` carries (for :class:`~matfit._math.Vec3` or
+    ``(..., 3)`` directions).
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit.fast import half_vector
+    >>> h, cos_d = half_vector(jnp.array([0.6, 0.0, 0.8]), jnp.array([-0.6, 0.0, 0.8]))
+    >>> h.tolist(), round(float(cos_d), 6)
+    ([0.0, 0.0, 1.0], 0.8)
+    """
     h = normalize(wo + wi)
     return h, dot(wo, h)
 

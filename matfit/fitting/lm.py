@@ -290,8 +290,7 @@ def lm_fd(fn, z0, args, seeds, owner, max_steps=100, rtol=1e-8, atol=1e-10, cent
         delta = jnp.linalg.solve(s.A + s.mu * D * eye, -s.g)
         # At most max_step in any coordinate of z (the direction kept): a sigmoid-mapped
         # parameter must not jump into saturation, where its derivative vanishes for good.
-        big = jnp.max(jnp.abs(delta))
-        delta = delta * jnp.where(big > max_step, max_step / jnp.where(big > max_step, big, 1), 1)
+        delta = delta * jnp.minimum(1, max_step / jnp.maximum(jnp.max(jnp.abs(delta)), jnp.finfo(dt).tiny))
         r_new = fn(s.z + delta, args)
         F_new = _half_sq(r_new)
         pred = -jnp.dot(s.g, delta) - 0.5 * jnp.dot(delta, s.A @ delta)
