@@ -30,7 +30,9 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-RESULTS_DIR = Path(__file__).resolve().parent / "results"
+# Where results go: benchmarks/results/, or the folder named by MATFIT_BENCH_RESULTS (a GPU run writes
+# there so that its figures do not overwrite this machine's).
+RESULTS_DIR = Path(os.environ.get("MATFIT_BENCH_RESULTS") or Path(__file__).resolve().parent / "results")
 
 
 # --------------------------------------------------------------------------------------------------
@@ -229,7 +231,7 @@ def _jsonable(x: Any) -> Any:
 
 def write_json(name: str, results: Any, *, args: dict | None = None, extra: dict | None = None,
                path: str | os.PathLike | None = None) -> Path:
-    """Write ``{"meta": {...}, "results": results}`` to ``benchmarks/results/<name>.json`` (or ``path``).
+    """Write ``{"meta": {...}, "results": results}`` to ``RESULTS_DIR/<name>.json`` (or ``path``).
 
     ``meta`` holds the benchmark name, its arguments, :func:`machine_info` (load included) and ``extra``.
     Non-finite floats become null; keys named ``result`` (raw outputs from :func:`time_jax`) are dropped.

@@ -19,7 +19,7 @@ must agree to a small relative tolerance (``--loss-rtol``, 1e-6). Iterations: LM
 (matfit) and Jacobian evaluations (scipy).
 
 Usage: python benchmarks/bench_fit_merl.py [--quick] [--repeats 3] [--scipy-repeats 1]
-Writes benchmarks/results/fit_merl.json.
+Writes benchmarks/results/fit_merl.json (or ``--out``; MATFIT_BENCH_RESULTS moves the results folder).
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _numpy_models as nm  # noqa: E402
-from _common import machine_info, print_table, summarize, write_json  # noqa: E402
+from _common import print_table, summarize, write_json  # noqa: E402
 
 from matfit.fitting import fit, initial_guess  # noqa: E402
 from matfit.fitting.params import Parametrization  # noqa: E402
@@ -87,6 +87,7 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="a 20,000-row subsample instead of the full table")
     ap.add_argument("--loss-rtol", type=float, default=1e-6)
     ap.add_argument("--families", default="plastic,conductor")
+    ap.add_argument("--out", default=None, help="JSON path (default RESULTS_DIR/fit_merl.json; name another for a partial run)")
     ns = ap.parse_args(argv)
     rows = []
     for family, material in CASES:
@@ -144,7 +145,8 @@ def main(argv=None):
     print_table(flat, [("case", "case", "s"), ("solver", "solver", "s"), ("median_s", "run s", ".2f"),
                        ("spread", "spread", ".2f"), ("compile_s", "compile s", ".1f"), ("iterations", "iter", "d"),
                        ("loss", "final loss", ".8g"), ("rel", "vs scipy", "+.1e"), ("x", "speedup", ".1f")])
-    out = write_json("fit_merl", rows, args=vars(ns), extra={"loss": LOSS, "devices": len(jax.devices())})
+    out = write_json("fit_merl", rows, args=vars(ns), extra={"loss": LOSS, "devices": len(jax.devices())},
+                     path=ns.out)
     print(f"wrote {out}")
     return rows
 

@@ -15,7 +15,6 @@ from __future__ import annotations
 import json
 import platform
 import time
-from pathlib import Path
 
 import jax
 
@@ -23,6 +22,7 @@ jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
+from _common import RESULTS_DIR  # noqa: E402  (benchmarks/ is on sys.path for a script run directly)
 from matfit.models import Lambert, Plastic, RoughDielectric, SmoothDielectric, StochasticLayered  # noqa: E402
 
 WO = jnp.array([[0.0, 0.0, 1.0], [np.sin(1.0), 0.0, np.cos(1.0)]])
@@ -71,7 +71,7 @@ def main():
             }
             rows.append(row)
             print(f"{name:34s} {n:6d} {row['albedo_abs_err']:14.2e} {row['f_abs_err']:14.2e} {row['f_stderr']:9.2e} {row['run_s']:7.3f} {row['compile_s']:9.2f}")
-    out = Path(__file__).parent / "results" / "stochastic_layered.json"
+    out = RESULTS_DIR / "stochastic_layered.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"machine": platform.processor() or platform.machine(), "cpus": jax.device_count(),
                                "jax": jax.__version__, "rows": rows}, indent=1))

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import jax
 
+from _common import RESULTS_DIR  # benchmarks/ is on sys.path for a script run directly
 from data_synth import EvalCounter, parse_scene, synthesize
 
 BASE = {
@@ -56,7 +57,7 @@ def variants():
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "bench_synth_effects.json"))
+    ap.add_argument("--out", default=str(RESULTS_DIR / "bench_synth_effects.json"))
     args = ap.parse_args(argv)
     rows = []
     for name, d in variants():

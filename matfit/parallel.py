@@ -59,9 +59,17 @@ def use_host_devices(n: int | None = None) -> int:
     n = int(n if n is not None else (os.cpu_count() or 1))
     if n < 1:
         raise MatfitError(f"use_host_devices: n must be >= 1, got {n}")
-    from jax._src import xla_bridge  # the public API has no "is the backend started" query
+    try:  # the public API has no "is the backend started" query
+        from jax._src import xla_bridge
 
-    if xla_bridge.backends_are_initialized():
+        started = xla_bridge.backends_are_initialized()
+    except (ImportError, AttributeError):  # another JAX version: ask the config, which refuses once started
+        try:
+            jax.config.update("jax_num_cpu_devices", n)
+            return n
+        except Exception:  # noqa: BLE001 - the check below names the problem
+            started = True
+    if started:
         have = len(jax.devices("cpu"))
         if have != n:
             raise MatfitError(
