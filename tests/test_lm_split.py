@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from matfit.fitting.fit import _prepared_residual_fn, _solver, _split_residual_fn, _table_arrays, initial_guess
-from matfit.fitting.lm import GRAM_BLOCK, _gram, column_groups, jacobian, lm_fd, normal_equations
+from matfit.fitting.lm import GRAM_BLOCK, SMALL_TABLE, _gram, _moments, column_groups, jacobian, lm_fd, normal_equations
 from matfit.fitting.params import Parametrization
 
 from test_fit_lm_fd import _table
@@ -22,6 +22,20 @@ def test_gram_equals_numpy(m, n, x64):
     X = np.random.default_rng(0).normal(size=(m, n))
     G = np.asarray(_gram([jnp.asarray(x) for x in X]))
     np.testing.assert_allclose(G, X @ X.T, rtol=1e-12)
+
+
+@pytest.mark.parametrize("n", [SMALL_TABLE // 3, SMALL_TABLE // 3 + 1])  # elementwise sums, and the dot
+def test_moments_equal_numpy(n, x64):
+    rng = np.random.default_rng(1)
+    K, r = rng.normal(size=(4, n, 3)), rng.normal(size=(n, 3))
+    M, v = (np.asarray(x) for x in _moments(jnp.asarray(K), jnp.asarray(r)))
+    for c in range(3):
+        np.testing.assert_allclose(M[c], K[:, :, c] @ K[:, :, c].T, rtol=1e-12)
+        np.testing.assert_allclose(v[c], K[:, :, c] @ r[:, c], rtol=1e-12)
+    # ... and under vmap (fit_batch), where the elementwise form replaces XLA's batched tiny dots
+    Mb, vb = jax.vmap(_moments)(jnp.asarray(np.stack([K, 2 * K])), jnp.asarray(np.stack([r, r])))
+    np.testing.assert_allclose(np.asarray(Mb[1]), 4 * M, rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(vb[1]), 2 * v, rtol=1e-12)
 
 
 @pytest.mark.parametrize("family, loss", [("conductor", "e2"), ("lambert", "l2"), ("conductor_beckmann", "cosine")])

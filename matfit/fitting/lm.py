@@ -80,6 +80,8 @@ __all__ = ["column_groups", "jacobian", "lm_fd", "normal_equations", "GRAM_BLOCK
 #: Column block of the channel-split Gram reductions; channel-split residuals padded to a
 #: multiple of it take the blocked path (:func:`_gram`).
 GRAM_BLOCK = 512
+#: Residual count up to which :func:`_moments` sums elementwise products instead of a dot.
+SMALL_TABLE = 4096
 
 
 def column_groups(par):
@@ -174,6 +176,19 @@ def _channel_moments(fn, z, args, seeds, owner, central, r, wide=False):
     return P[:, :G, :G], P[:, :G, G], _group_map(seeds, owner, h, central), r
 
 
+def _moments(K, r):
+    """``M = [K_g . K_h]`` (C, G, G) and ``v = [K_g . r]`` (C, G) per channel, for differences ``K``
+    (G, N, C) and residuals ``r`` (N, C).
+
+    Small tables (at most ``SMALL_TABLE`` residuals: the texels of ``fit_batch``, where this runs
+    under ``vmap``) take elementwise products and sums: XLA's CPU batched dot of such tiny
+    matrices ran 3x slower (53 against 17 ms for 10,000 tables of 32 RGB rows). Large ones take
+    the dot, which is 4x faster than the elementwise form in float32 on a full MERL table."""
+    if K.shape[1] * K.shape[2] <= SMALL_TABLE:
+        return jnp.sum(K[:, None] * K[None], axis=2).transpose(2, 0, 1), jnp.sum(K * r[None], axis=1).T
+    return jnp.einsum("gnc,hnc->cgh", K, K), jnp.einsum("gnc,nc->cg", K, r)
+
+
 def _split(r):
     """True for channel-split residuals (a tuple of per-channel arrays)."""
     return isinstance(r, (tuple, list))
@@ -192,9 +207,7 @@ def normal_equations(fn, z, args, seeds, owner, central=False, r=None, F=None, w
         M, v, E, r = _channel_moments(fn, z, args, seeds, owner, central, r, wide)
     else:
         K, E, r = _differences(fn, z, args, seeds, owner, central, r)
-        Kw, rw = (_wide(K), _wide(r)) if wide else (K, r)
-        M = jnp.einsum("gnc,hnc->cgh", Kw, Kw)
-        v = jnp.einsum("gnc,nc->cg", Kw, rw)
+        M, v = _moments(*((_wide(K), _wide(r)) if wide else (K, r)))
     if wide:
         E = _wide(E)
     A = jnp.einsum("cgp,cgh,chq->pq", E, M, E)
