@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from matfit.fitting.fit import _prepared_residual_fn, _solver, _split_residual_fn, _table_arrays, initial_guess
-from matfit.fitting.lm import GRAM_BLOCK, SMALL_TABLE, _gram, _moments, column_groups, jacobian, lm_fd, normal_equations
+from matfit.fitting.lm import GRAM_BLOCK, _gram, _moments, column_groups, jacobian, lm_fd, normal_equations
 from matfit.fitting.params import Parametrization
 
 from test_fit_lm_fd import _table
@@ -24,18 +24,41 @@ def test_gram_equals_numpy(m, n, x64):
     np.testing.assert_allclose(G, X @ X.T, rtol=1e-12)
 
 
-@pytest.mark.parametrize("n", [SMALL_TABLE // 3, SMALL_TABLE // 3 + 1])  # elementwise sums, and the dot
-def test_moments_equal_numpy(n, x64):
+@pytest.mark.parametrize("as_list", [True, False])  # small tables (elementwise sums), large (the dot)
+def test_moments_equal_numpy(as_list, x64):
     rng = np.random.default_rng(1)
-    K, r = rng.normal(size=(4, n, 3)), rng.normal(size=(n, 3))
-    M, v = (np.asarray(x) for x in _moments(jnp.asarray(K), jnp.asarray(r)))
+    K, r = rng.normal(size=(4, 50, 3)), rng.normal(size=(50, 3))
+    Kj = [jnp.asarray(k) for k in K] if as_list else jnp.asarray(K)
+    M, v = (np.asarray(x) for x in _moments(Kj, jnp.asarray(r)))
     for c in range(3):
         np.testing.assert_allclose(M[c], K[:, :, c] @ K[:, :, c].T, rtol=1e-12)
         np.testing.assert_allclose(v[c], K[:, :, c] @ r[:, c], rtol=1e-12)
     # ... and under vmap (fit_batch), where the elementwise form replaces XLA's batched tiny dots
-    Mb, vb = jax.vmap(_moments)(jnp.asarray(np.stack([K, 2 * K])), jnp.asarray(np.stack([r, r])))
+    Kb = [jnp.asarray(np.stack([k, 2 * k])) for k in K] if as_list else jnp.asarray(np.stack([K, 2 * K]))
+    Mb, vb = jax.vmap(_moments)(Kb, jnp.asarray(np.stack([r, r])))
     np.testing.assert_allclose(np.asarray(Mb[1]), 4 * M, rtol=1e-12)
     np.testing.assert_allclose(np.asarray(vb[1]), 2 * v, rtol=1e-12)
+
+
+@pytest.mark.parametrize("central", [False, True])
+def test_small_and_large_table_normal_equations_agree(central, x64, monkeypatch):
+    """The one-by-one evaluation of small tables and the vmapped one of large tables give the same
+    normal equations (the threshold moved so that one table takes both paths)."""
+    import matfit.fitting.lm as lm
+
+    t = _table(n=96)
+    par = Parametrization("conductor", 3)
+    groups = column_groups(par)
+    z = jnp.asarray(np.random.default_rng(4).normal(0, 0.5, par.size))
+    prep, fn = _prepared_residual_fn(par, "e2", None, 1.0)
+    args = prep(_table_arrays(t, jnp.float64))
+    small = normal_equations(fn, z, args, *groups, central=central, wide=True)
+    monkeypatch.setattr(lm, "SMALL_TABLE", 0)
+    large = normal_equations(fn, z, args, *groups, central=central, wide=True)
+    tol = 1e-9 if central else 1e-6  # the two programs round differently; a forward step (~1e-8) amplifies it
+    for a, b in zip(small, large):
+        b = np.asarray(b)
+        np.testing.assert_allclose(np.asarray(a), b, rtol=tol, atol=tol * 1e-3 * np.abs(b).max())
 
 
 @pytest.mark.parametrize("family, loss", [("conductor", "e2"), ("lambert", "l2"), ("conductor_beckmann", "cosine")])

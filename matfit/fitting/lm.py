@@ -80,7 +80,8 @@ __all__ = ["column_groups", "jacobian", "lm_fd", "normal_equations", "GRAM_BLOCK
 #: Column block of the channel-split Gram reductions; channel-split residuals padded to a
 #: multiple of it take the blocked path (:func:`_gram`).
 GRAM_BLOCK = 512
-#: Residual count up to which :func:`_moments` sums elementwise products instead of a dot.
+#: Residual count up to which a table counts as small: perturbed points evaluated one by one and
+#: moments summed elementwise (:func:`_differences`, :func:`_moments`).
 SMALL_TABLE = 4096
 
 
@@ -110,20 +111,22 @@ def _steps(z, central):
     return base * jnp.maximum(1.0, jnp.abs(z))
 
 
-def _differences(fn, z, args, seeds, owner, central, r):
-    """Compressed differences ``K`` (G, N, C), the group-to-parameter map ``E`` (C, G, p) and ``r``."""
+def _differences(fn, z, args, seeds, owner, central, r, stacked=True):
+    """Compressed differences ``K``, the group-to-parameter map ``E`` (C, G, p) and ``r``.
+
+    ``stacked``: ``K`` is one array (G, N, C) from one vmapped evaluation of the G perturbed
+    points (the model appears once in the program, and what depends only on the table's
+    directions is computed once: large tables). Else ``K`` is a list of G arrays (N, C), the
+    points evaluated one after the other (small tables, :data:`SMALL_TABLE`: under ``vmap``
+    the stacked layout ran 1.2x (float64) to 3x (float32) slower)."""
     seeds = jnp.asarray(seeds, z.dtype)
     owner = jnp.asarray(owner, z.dtype)
     if r is None:
         r = fn(z, args)
     h = _steps(z, central)
-    # One vmapped evaluation of the G perturbed points: the model appears once in the program
-    # (compile time), and what depends only on the table's directions is computed once.
     D = seeds * h
-    if central:
-        K = jax.vmap(lambda d: fn(z + d, args) - fn(z - d, args))(D)
-    else:
-        K = jax.vmap(lambda d: fn(z + d, args))(D) - r
+    diff = (lambda d: fn(z + d, args) - fn(z - d, args)) if central else (lambda d: fn(z + d, args) - r)
+    K = jax.vmap(diff)(D) if stacked else [diff(d) for d in D]
     return K, _group_map(seeds, owner, h, central), r
 
 
@@ -178,15 +181,21 @@ def _channel_moments(fn, z, args, seeds, owner, central, r, wide=False):
 
 def _moments(K, r):
     """``M = [K_g . K_h]`` (C, G, G) and ``v = [K_g . r]`` (C, G) per channel, for differences ``K``
-    (G, N, C) and residuals ``r`` (N, C).
+    and residuals ``r`` (N, C).
 
-    Small tables (at most ``SMALL_TABLE`` residuals: the texels of ``fit_batch``, where this runs
-    under ``vmap``) take elementwise products and sums: XLA's CPU batched dot of such tiny
-    matrices ran 3x slower (53 against 17 ms for 10,000 tables of 32 RGB rows). Large ones take
-    the dot, which is 4x faster than the elementwise form in float32 on a full MERL table."""
-    if K.shape[1] * K.shape[2] <= SMALL_TABLE:
-        return jnp.sum(K[:, None] * K[None], axis=2).transpose(2, 0, 1), jnp.sum(K * r[None], axis=1).T
-    return jnp.einsum("gnc,hnc->cgh", K, K), jnp.einsum("gnc,nc->cg", K, r)
+    ``K`` stacked (G, N, C) (large tables) takes XLA's dot. ``K`` a list of G arrays (N, C)
+    (small tables, the texels of ``fit_batch``, where this runs under ``vmap``) takes one
+    elementwise product and sum per pair, after an optimization barrier (else XLA may fuse the
+    model into every product): XLA's CPU batched dot of such tiny matrices ran 3x slower (53
+    against 17 ms for 10,000 tables of 32 RGB rows); on a full MERL table the dot is 4x faster
+    than the elementwise form in float32."""
+    if not isinstance(K, (list, tuple)):
+        return jnp.einsum("gnc,hnc->cgh", K, K), jnp.einsum("gnc,nc->cg", K, r)
+    K, r = jax.lax.optimization_barrier((list(K), r))
+    G = len(K)
+    dots = {(i, j): jnp.sum(K[i] * K[j], axis=0) for i in range(G) for j in range(i, G)}
+    M = jnp.stack([jnp.stack([dots[min(i, j), max(i, j)] for j in range(G)], -1) for i in range(G)], -2)
+    return M, jnp.stack([jnp.sum(k * r, axis=0) for k in K], -1)
 
 
 def _split(r):
@@ -206,8 +215,9 @@ def normal_equations(fn, z, args, seeds, owner, central=False, r=None, F=None, w
     if _split(r if r is not None else jax.eval_shape(fn, z, args)):
         M, v, E, r = _channel_moments(fn, z, args, seeds, owner, central, r, wide)
     else:
-        K, E, r = _differences(fn, z, args, seeds, owner, central, r)
-        M, v = _moments(*((_wide(K), _wide(r)) if wide else (K, r)))
+        N, C = (r if r is not None else jax.eval_shape(fn, z, args)).shape[-2:]
+        K, E, r = _differences(fn, z, args, seeds, owner, central, r, stacked=N * C > SMALL_TABLE)
+        M, v = _moments(*(jax.tree_util.tree_map(_wide, (K, r)) if wide else (K, r)))
     if wide:
         E = _wide(E)
     A = jnp.einsum("cgp,cgh,chq->pq", E, M, E)
