@@ -67,7 +67,7 @@ import numpy as np
 
 from ..errors import MatfitError, ParameterError
 from ..table import Table
-from .losses import check_loss, residuals
+from .losses import check_loss, prepare_targets, residuals_from_targets
 from .params import Parametrization, get_family
 
 __all__ = ["PosteriorResult", "LogProb", "SamplingError", "make_log_prob", "sample_posterior", "NOISE_MODES"]
@@ -96,19 +96,17 @@ def _compiled(family, channels, fixed_items, tied, loss, noise):
     ls_lo, ls_hi = (math.log(b) for b in NOISE_SCALE_BOUNDS)
 
     def one(x, args):
-        wo, wi, values, weight, floor, pmask, pmean, psd, logw_sum, n = args
+        # target, factor: the data's part of the residuals (losses.prepare_targets), and t the
+        # residual of a zero prediction, computed once in make_log_prob: computed here, XLA
+        # fused them into the loop over the points (0.57 against 0.41 ms for 16 points).
+        wo, wi, target, factor, t, usable, floor, pmask, pmean, psd, logw_sum, n = args
         z = x[:p]
-        usable = weight > 0
         pred = par.model(z).eval(wo, wi)
-        cos_i = wi[..., 2]
+        r = residuals_from_targets(pred, target, factor, wi[..., 2], loss)
         if noise == "table":
-            r = residuals(pred, values, weight, cos_i, loss)
             ll = -0.5 * jnp.sum(r * r) + 0.5 * logw_sum - 0.5 * n * _LOG2PI
             lp_noise = 0.0
         else:
-            one_w = usable.astype(values.dtype)
-            r = residuals(pred, values, one_w, cos_i, loss)
-            t = jnp.abs(residuals(jnp.zeros_like(values), values, one_w, cos_i, loss))
             logs = x[p]
             sig = jnp.exp(logs) * t + floor
             sig = jnp.where(usable, sig, 1.0)
@@ -242,14 +240,16 @@ def make_log_prob(table, model="plastic", fixed=None, tied=(), loss="l2", noise=
                              f"{par.size + (noise == 'fit')} free parameters")
     a = table.as_jax(dtype)
     dt = a.values.dtype
+    usable = weight > 0
+    # noise="table": r = sqrt(w) (T(f) - T(y)); noise="fit": unit weights on the usable rows, and
+    # t = |r| at a zero prediction, the scale of the relative noise model
+    w = a.weight if noise == "table" else jnp.asarray(usable, dt)
+    target, factor = prepare_targets(a.values, w, a.wi[:, 2], loss)
+    t_zero = jnp.abs(residuals_from_targets(jnp.zeros_like(a.values), target, factor, a.wi[:, 2], loss))
     floor = 0.0
     if noise == "fit":
         if noise_floor is None:
-            usable = weight > 0
-            cos_i = np.asarray(table.wi)[:, 2]
-            t = np.abs(np.asarray(residuals(jnp.zeros_like(a.values), a.values, jnp.asarray(usable, dt),
-                                            jnp.asarray(cos_i, dt), loss)))
-            floor = 1e-5 * float(np.median(t[usable]))
+            floor = 1e-5 * float(np.median(np.asarray(t_zero)[usable]))
             floor = floor if floor > 0 else 1e-12
         else:
             floor = float(noise_floor)
@@ -258,8 +258,8 @@ def make_log_prob(table, model="plastic", fixed=None, tied=(), loss="l2", noise=
     elif noise_floor is not None:
         raise ParameterError("sample_posterior: noise_floor is only used with noise='fit'")
     # sum of log(1 / sigma^2) over the usable residuals: the same for every point, computed once
-    logw_sum = float(np.sum(np.log(weight[weight > 0])))
-    args = (a.wo, a.wi, a.values, a.weight, jnp.asarray(floor, dt), jnp.asarray(pmask),
+    logw_sum = float(np.sum(np.log(weight[usable])))
+    args = (a.wo, a.wi, target, factor, t_zero, jnp.asarray(usable), jnp.asarray(floor, dt), jnp.asarray(pmask),
             jnp.asarray(pmean, dt), jnp.asarray(psd, dt), jnp.asarray(logw_sum, dt), jnp.asarray(n_res, dt))
     lp = LogProb(par, batched, to_natural, args, noise, pdesc, block or 8, dt)
     lp.noise_floor = floor
