@@ -102,27 +102,34 @@ def fresnel_conductor(cos_theta_i, eta, k):
     c = jnp.clip(jnp.abs(jnp.asarray(cos_theta_i)), 0, 1)
     eta = jnp.asarray(eta)
     k = jnp.asarray(k)
+    fi = jnp.finfo(jnp.result_type(c, eta, k))
+    # eta and k clamped at max^(1/4) / 4 of the dtype (float32: 1.07e9, where F is 1 to float32
+    # precision), so that t0^2 and the products below stay finite.
+    lim = float(fi.max) ** 0.25 / 4
+    eta, k = jnp.minimum(eta, lim), jnp.minimum(k, lim)
     cos2 = c * c
     sin2 = 1 - cos2
-    # eta^2 - k^2 - sin^2 written as (eta^2 - k^2 - 1) + cos^2: exact for an index-matched
+    # eta^2 - k^2 - sin^2 written as t0 = (eta^2 - k^2 - 1) + cos^2: exact for an index-matched
     # surface (eta = 1, k = 0, where F must be exactly 0) and without cancellation near it.
     t0 = (sq(eta) - sq(k) - 1) + cos2
-    # a^2 + b^2 = hypot(t0, 2 eta k), scaled so that t0^2 cannot underflow (float32, tiny cos)
+    # a^2 + b^2 = hypot(t0, u), u = 2 eta k, as sqrt(t0^2 + u^2): no division (a scaled hypot's
+    # two per direction were half the cost of this function). Where t0^2 + u^2 is below the
+    # smallest normal number (|t0| and |u| both < 1.1e-19 in float32) it is max(|t0|, |u|):
+    # exact for u = 0, which keeps an index-matched surface at F = 0 at every angle.
     u = 2 * eta * k
-    big = jnp.maximum(jnp.abs(t0), jnp.abs(u))
-    pos = big > 0
-    big_s = jnp.where(pos, big, 1)
-    a2b2 = jnp.where(pos, big_s * jnp.sqrt(jnp.where(pos, sq(t0 / big_s) + sq(u / big_s), 1)), 0)
+    s2 = sq(t0) + sq(u)
+    normal = s2 >= fi.tiny
+    a2b2 = jnp.where(normal, jnp.sqrt(jnp.where(normal, s2, 1)), jnp.maximum(jnp.abs(t0), jnp.abs(u)))
     a = safe_sqrt(0.5 * (a2b2 + t0))
     t1 = a2b2 + cos2
     t2 = 2 * a * c
-    # Both ratios are 0/0 only at grazing incidence on an index-matched surface, where F = 1.
-    rs = safe_div(t1 - t2, t1 + t2, 1.0)
     t3 = cos2 * a2b2 + sq(sin2)
     t4 = t2 * sin2
-    rp = rs * safe_div(t3 - t4, t3 + t4, 1.0)
+    # F = (R_s + R_p) / 2 = R_s (1 + (t3 - t4) / (t3 + t4)) / 2 = R_s t3 / (t3 + t4): one division.
+    # The denominator is 0 only at grazing incidence on an index-matched surface, where F = 1.
+    F = safe_div((t1 - t2) * t3, (t1 + t2) * (t3 + t4), 1.0)
     # Rounding can leave R a few ulps below 0 near eta = 1, k = 0 (float32): clamp to [0, 1].
-    return jnp.clip(0.5 * (rs + rp), 0.0, 1.0)
+    return jnp.clip(F, 0.0, 1.0)
 
 
 def fresnel_schlick(cos_theta_i, f0):

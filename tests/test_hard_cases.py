@@ -541,6 +541,8 @@ def test_property_lambert(albedo, d, u):
 
 @PROP
 @given(alpha=alpha_st, eta=cond_eta, k=cond_k, d=dirs, u=u_st)
+@example(alpha=0.0, eta=[1.0, 1.0, 1.0], k=[0.0, 0.0, 1.5393532296991593e-35], d=([0.0] * NP, [0.0] * NP, [0.0] * NP),
+         u=[(0.0, 0.0, 0.0)] * NP)  # found by hypothesis: a tiny k, whose 1/k^2 overflowed a Fresnel gradient
 def test_property_rough_conductor(alpha, eta, k, d, u):
     m = RoughConductor(HDT(alpha), np.asarray(eta, HDT), np.asarray(k, HDT))
     _check_prop(m, *_dirs(d), u, per_sample_energy=True)
@@ -604,6 +606,8 @@ def test_property_coated_conductor(alpha, eta, k, alpha_coat, eta_coat, thicknes
 @PROP
 @given(weight=st.one_of(st.sampled_from([0.0, 1.0]), unit_st), albedo=rgb, alpha=alpha_st, eta=cond_eta, k=cond_k,
        d=dirs, u=u_st)
+@example(weight=0.0, albedo=[0.0, 0.0, 0.0], alpha=0.0, eta=[1.0, 1.0, 1.0], k=[0.0, 0.0, 1e-30],
+         d=([0.0] * NP, [0.0] * NP, [0.0] * NP), u=[(0.0, 0.0, 0.0)] * NP)  # as in test_property_rough_conductor
 def test_property_blend(weight, albedo, alpha, eta, k, d, u):
     m = Blend(Lambert(np.asarray(albedo, HDT)), RoughConductor(HDT(alpha), np.asarray(eta, HDT), np.asarray(k, HDT)),
               HDT(weight))

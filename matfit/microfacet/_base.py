@@ -77,7 +77,7 @@ class AbstractDistribution(eqx.Module):
         """Stretched squared slope (mx^2/ax^2 + my^2/ay^2) / mz^2 for m_z > 0 (else inf-safe)."""
         ax, ay = self._alphas()
         mz2 = jnp.maximum(sq(m[..., 2]), COS_EPS * COS_EPS)
-        return (sq(m[..., 0] / ax) + sq(m[..., 1] / ay)) / mz2
+        return (sq(m[..., 0] * (1 / ax)) + sq(m[..., 1] * (1 / ay))) / mz2
 
     def _a2tan2(self, v):
         """Projected roughness times tan^2: (vx^2 ax^2 + vy^2 ay^2) / vz^2."""
@@ -93,10 +93,17 @@ class AbstractDistribution(eqx.Module):
         phi = 2 * jnp.pi * u_phi
         return normal_from_slopes(ax * r * jnp.cos(phi), ay * r * jnp.sin(phi))
 
+    def _g1_ratio(self, v):
+        """``(num, den)`` with :math:`1 / (1 + \Lambda(v))` = ``num / den``: one division for
+        :meth:`G1`, and one for both factors of the separable :meth:`G2`. A distribution with a
+        closed form of its own (GGX) overrides it."""
+        return 1.0, 1 + self.Lambda(v)
+
     def G1(self, v, m):
         r"""Smith masking :math:`\chi^+((v\cdot m)/(v\cdot n)) / (1 + \Lambda(v))`."""
         chi = dot(v, m) * v[..., 2] > 0
-        return jnp.where(chi, 1 / (1 + self.Lambda(v)), 0)
+        num, den = self._g1_ratio(v)
+        return jnp.where(chi, num / den, 0)
 
     def G2(self, wo, wi, m, form="separable"):
         r"""Masking-shadowing of ``wo`` and ``wi`` by microfacets of normal ``m``.
@@ -106,8 +113,10 @@ class AbstractDistribution(eqx.Module):
         :math:`B(1 + \Lambda_o, 1 + \Lambda_i)` (the Beta function) for transmission
         (Heitz 2014, Eq. 99), both times the visibility indicators.
         """
-        if form == "separable":
-            return self.G1(wo, m) * self.G1(wi, m)
+        if form == "separable":  # G1(wo) G1(wi) as one ratio
+            chi = (dot(wo, m) * wo[..., 2] > 0) & (dot(wi, m) * wi[..., 2] > 0)
+            (no, do), (ni, di) = self._g1_ratio(wo), self._g1_ratio(wi)
+            return jnp.where(chi, (no * ni) / (do * di), 0)
         if form != "height_correlated":
             raise ValueError(f"masking form must be one of {MASKING_FORMS}, got {form!r}")
         chi = (dot(wo, m) * wo[..., 2] > 0) & (dot(wi, m) * wi[..., 2] > 0)

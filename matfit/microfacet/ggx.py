@@ -5,6 +5,8 @@ r"""GGX / Trowbridge-Reitz distribution.
     \Lambda(v) = \frac{-1 + \sqrt{1 + \alpha^2\tan^2\theta_v}}{2}
 
 with the projected roughness :math:`\alpha^2\tan^2\theta_v = (v_x^2\alpha_x^2 + v_y^2\alpha_y^2)/v_z^2`.
+Smith's :math:`G_1 = 1/(1 + \Lambda)` is evaluated as
+:math:`2|v_z| / (|v_z| + \sqrt{v_z^2 + v_x^2\alpha_x^2 + v_y^2\alpha_y^2})` (Walter et al. 2007, Eq. 34).
 
 References
 ----------
@@ -40,7 +42,8 @@ class GGX(AbstractDistribution):
     def D(self, m):
         ax, ay = self._alphas()
         mz2 = sq(m[..., 2])
-        t = sq(m[..., 0] / ax) + sq(m[..., 1] / ay) + mz2
+        # 1 / alpha once per model, not a division per normal
+        t = sq(m[..., 0] * (1 / ax)) + sq(m[..., 1] * (1 / ay)) + mz2
         d = 1 / (jnp.pi * ax * ay * sq(t))
         return jnp.where(m[..., 2] > 0, d, 0)
 
@@ -48,6 +51,13 @@ class GGX(AbstractDistribution):
         t = self._a2tan2(v)
         # (sqrt(1 + t) - 1)/2 written without cancellation near the normal (t -> 0).
         return t / (2 * (1 + jnp.sqrt(1 + t)))
+
+    def _g1_ratio(self, v):
+        # 1 / (1 + Lambda) = 2 |v_z| / (|v_z| + sqrt(v_z^2 + v_x^2 a_x^2 + v_y^2 a_y^2)) (Walter et
+        # al. 2007, Eq. 34, times |v_z| / |v_z|): no division inside, none by v_z, no cancellation.
+        ax, ay = self._alphas()
+        vz = jnp.abs(v[..., 2])
+        return 2 * vz, vz + jnp.sqrt(sq(v[..., 2]) + sq(v[..., 0] * ax) + sq(v[..., 1] * ay))
 
     def sample_dcos(self, u):
         u1 = u[..., 0]
