@@ -244,3 +244,27 @@ def test_identifiability_helper_against_rank():
     assert set(identifiability(J, ["a", "b", "c"], np.zeros(3), np.ones(3))) == {"a", "b", "c"}
     J[:, 2] = 0
     assert identifiability(J, ["a", "b", "c"], np.zeros(3), np.ones(3)) == ["c"]
+
+
+def test_fit_in_float32_without_x64_warns_nothing():
+    """`make demo` runs without x64: a fit's covariance must not ask JAX for float64 (JAX then
+    warns that it truncates). A fresh process, since the test session turns x64 on for good."""
+    import os
+    import subprocess
+    import sys
+
+    code = (
+        "import numpy as np, jax.numpy as jnp\n"
+        "from matfit import Table\n"
+        "from matfit.fitting import fit\n"
+        "from matfit.models import RoughConductor\n"
+        "wo = np.array([[np.sin(t), 0.0, np.cos(t)] for t in np.linspace(0, 1.2, 24)])\n"
+        "wi = wo * np.array([-1.0, 1.0, 1.0])\n"
+        "f = np.asarray(RoughConductor(0.3, jnp.array([0.2, 0.9, 1.4]), jnp.array([3.6, 2.5, 1.9]))"
+        ".eval(jnp.asarray(wo), jnp.asarray(wi)))\n"
+        "r = fit(Table(wo=wo, wi=wi, values=f, channels='rgb'), model='conductor', method='lm', starts=1)\n"
+        "assert np.isfinite(r.values).all()\n"
+    )
+    out = subprocess.run([sys.executable, "-W", "error::UserWarning", "-c", code], capture_output=True, text=True,
+                         timeout=600, env={**os.environ, "JAX_ENABLE_X64": "0"})
+    assert out.returncode == 0, out.stderr[-2000:]

@@ -23,7 +23,7 @@ from ..parallel import device_count, shard_batch
 from ..table import Table
 from ._conductor_guess import conductor_guess, curve_readable
 from .diagnostics import diagnose
-from .lm import GRAM_BLOCK, column_groups, lm_fd, normal_equations
+from .lm import GRAM_BLOCK, _wide, column_groups, lm_fd, normal_equations
 from .losses import check_loss, prepare_targets, residuals_from_targets
 from .params import Parametrization, check_solver_options
 
@@ -240,7 +240,7 @@ def _solver(family, channels, fixed_items, tied, method, loss, robust, scale, ma
             _, A, _, r = normal_equations(solve_fn, z, arrays, *groups, central=z.dtype == jnp.float32, wide=True)
             r = jnp.stack(r, axis=-1) if split else r
             return r[:n].reshape(-1), A
-        J = jax.jacfwd(flat)(z, arrays).astype(jnp.promote_types(z.dtype, jnp.float64))
+        J = _wide(jax.jacfwd(flat)(z, arrays))  # float64 only when x64 is on (no truncation warning)
         return flat(z, arrays), J.T @ J
 
     return par, jax.jit(run), jax.jit(gram), jax.jit(objective)
