@@ -140,13 +140,18 @@ def _gram(xs):
     each summed over blocks of ``GRAM_BLOCK`` lanes first (n a multiple of it). XLA's CPU dot,
     or a stack of the arrays followed by one reduction, runs 4-5 times slower on a full MERL
     table (``docs/performance.md``)."""
-    m = len(xs)
     if xs[0].shape[0] % GRAM_BLOCK:
         X = jnp.stack(xs)
         return X @ X.T
-    xb = [x.reshape(-1, GRAM_BLOCK) for x in xs]
-    v = {(i, j): jnp.sum(jnp.sum(xb[i] * xb[j], axis=0)) for i in range(m) for j in range(i, m)}
-    return jnp.stack([jnp.stack([v[min(i, j), max(i, j)] for j in range(m)]) for i in range(m)])
+    return _pairwise([x.reshape(-1, GRAM_BLOCK) for x in xs], lambda a, b: jnp.sum(jnp.sum(a * b, axis=0)))
+
+
+def _pairwise(xs, prod):
+    """The symmetric matrix ``[prod(x_i, x_j)]`` over the arrays ``xs``, each product computed once
+    (``i <= j``), on the last two axes (leading axes: those of ``prod``'s result)."""
+    m = len(xs)
+    v = {(i, j): prod(xs[i], xs[j]) for i in range(m) for j in range(i, m)}
+    return jnp.stack([jnp.stack([v[min(i, j), max(i, j)] for j in range(m)], -1) for i in range(m)], -2)
 
 
 def _wide(x):
@@ -192,9 +197,7 @@ def _moments(K, r):
     if not isinstance(K, (list, tuple)):
         return jnp.einsum("gnc,hnc->cgh", K, K), jnp.einsum("gnc,nc->cg", K, r)
     K, r = jax.lax.optimization_barrier((list(K), r))
-    G = len(K)
-    dots = {(i, j): jnp.sum(K[i] * K[j], axis=0) for i in range(G) for j in range(i, G)}
-    M = jnp.stack([jnp.stack([dots[min(i, j), max(i, j)] for j in range(G)], -1) for i in range(G)], -2)
+    M = _pairwise(K, lambda a, b: jnp.sum(a * b, axis=0))
     return M, jnp.stack([jnp.sum(k * r, axis=0) for k in K], -1)
 
 
@@ -212,10 +215,11 @@ def normal_equations(fn, z, args, seeds, owner, central=False, r=None, F=None, w
     docstring. ``r`` (and ``F``) may be passed when already known at ``z``. ``wide``: the
     moments are summed in float64 (when x64 is on) and ``A``, ``g`` returned so, for covariances.
     """
-    if _split(r if r is not None else jax.eval_shape(fn, z, args)):
+    r_like = r if r is not None else jax.eval_shape(fn, z, args)
+    if _split(r_like):
         M, v, E, r = _channel_moments(fn, z, args, seeds, owner, central, r, wide)
     else:
-        N, C = (r if r is not None else jax.eval_shape(fn, z, args)).shape[-2:]
+        N, C = r_like.shape[-2:]
         K, E, r = _differences(fn, z, args, seeds, owner, central, r, stacked=N * C > SMALL_TABLE)
         M, v = _moments(*(jax.tree_util.tree_map(_wide, (K, r)) if wide else (K, r)))
     if wide:

@@ -99,9 +99,14 @@ class AbstractDistribution(eqx.Module):
         closed form of its own (GGX) overrides it."""
         return 1.0, 1 + self.Lambda(v)
 
+    @staticmethod
+    def _visible(v, m):
+        """The local visibility indicator :math:`\chi^+((v\cdot m)(v\cdot n))` of Smith's masking."""
+        return dot(v, m) * v[..., 2] > 0
+
     def G1(self, v, m):
         r"""Smith masking :math:`\chi^+((v\cdot m)/(v\cdot n)) / (1 + \Lambda(v))`."""
-        chi = dot(v, m) * v[..., 2] > 0
+        chi = self._visible(v, m)
         num, den = self._g1_ratio(v)
         return jnp.where(chi, num / den, 0)
 
@@ -113,13 +118,12 @@ class AbstractDistribution(eqx.Module):
         :math:`B(1 + \Lambda_o, 1 + \Lambda_i)` (the Beta function) for transmission
         (Heitz 2014, Eq. 99), both times the visibility indicators.
         """
+        if form not in MASKING_FORMS:
+            raise ValueError(f"masking form must be one of {MASKING_FORMS}, got {form!r}")
+        chi = self._visible(wo, m) & self._visible(wi, m)
         if form == "separable":  # G1(wo) G1(wi) as one ratio
-            chi = (dot(wo, m) * wo[..., 2] > 0) & (dot(wi, m) * wi[..., 2] > 0)
             (no, do), (ni, di) = self._g1_ratio(wo), self._g1_ratio(wi)
             return jnp.where(chi, (no * ni) / (do * di), 0)
-        if form != "height_correlated":
-            raise ValueError(f"masking form must be one of {MASKING_FORMS}, got {form!r}")
-        chi = (dot(wo, m) * wo[..., 2] > 0) & (dot(wi, m) * wi[..., 2] > 0)
         lo = self.Lambda(wo)
         li = self.Lambda(wi)
         refl = wo[..., 2] * wi[..., 2] > 0
