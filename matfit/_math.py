@@ -46,9 +46,11 @@ def normalize(v):
 
 def where_up(ok, v):
     """``v`` where ``ok``, else the normal ``(0, 0, 1)``: the first half of the double-where
-    pattern for directions, for ``(..., 3)`` arrays and :class:`Vec3` alike."""
+    pattern for directions, for ``(..., 3)`` arrays, :class:`Vec3` and :class:`IsoDir` alike."""
     if isinstance(v, Vec3):
         return Vec3(jnp.where(ok, v.x, 0), jnp.where(ok, v.y, 0), jnp.where(ok, v.z, 1))
+    if isinstance(v, IsoDir):
+        return IsoDir(jnp.where(ok, v.z, 1), jnp.where(ok, v.t2, 0))
     z = jnp.zeros_like(v).at[..., 2].set(1)
     return jnp.where(ok[..., None], v, z)
 
@@ -116,6 +118,74 @@ class Vec3:
     @classmethod
     def tree_unflatten(cls, aux, children):
         return cls(*children)
+
+
+
+@jax.tree_util.register_pytree_node_class
+class IsoDir:
+    r"""A direction known only by its polar angle: ``z`` = :math:`\cos\theta` and ``t2`` =
+    :math:`\sin^2\theta = x^2 + y^2`, without an azimuth.
+
+    What an isotropic microfacet distribution reads of a direction (``D``, ``Lambda``, ``G1``,
+    ``G2`` of :mod:`matfit.microfacet`, which accept it in place of a ``(..., 3)`` array; they use
+    ``alpha_x`` and so must be isotropic). It carries no azimuth, so Smith's visibility indicator
+    :math:`\chi^+((v\cdot m)(v\cdot n))` becomes :math:`v_z > 0`: exact where ``m`` is the
+    reflection half vector of ``v`` and another direction above the surface (there
+    :math:`v\cdot m = \lVert v + w\rVert / 2 > 0`), the only place :mod:`matfit.fast` builds
+    it. A kernel then reads one or two arrays per direction instead of three, and computes no
+    dot products (``docs/performance.md``). Only ``v[..., 2]`` is defined.
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit._math import IsoDir
+    >>> from matfit.microfacet import GGX
+    >>> m = jnp.array([0.6, 0.0, 0.8])
+    >>> bool(jnp.isclose(GGX(0.3).D(IsoDir(m[2], 0.36)), GGX(0.3).D(m)))
+    True
+    """
+
+    __slots__ = ("z", "t2")
+
+    def __init__(self, z, t2):
+        self.z, self.t2 = z, t2
+
+    @classmethod
+    def from_cos(cls, z):
+        """The direction of cosine ``z`` (a unit vector): ``t2 = 1 - z^2``, clamped at 0. Accurate
+        in absolute terms only (for ``z`` near 1 in float32, ``t2`` is off by ~1e-7), enough
+        where ``t2`` is scaled by ``alpha^2`` and added to ``z^2`` (``Lambda``, ``G1``), not for
+        the half vector of ``D``, whose ``t2`` is divided by ``alpha^2``."""
+        return cls(z, jnp.maximum(1 - z * z, 0))
+
+    @property
+    def shape(self):
+        return tuple(jnp.broadcast_shapes(jnp.shape(self.z), jnp.shape(self.t2))) + (3,)
+
+    @property
+    def dtype(self):
+        return jnp.result_type(self.z, self.t2)
+
+    def __getitem__(self, idx):
+        if not (isinstance(idx, tuple) and len(idx) == 2 and idx[0] is Ellipsis and idx[1] in (2, -1)):
+            raise TypeError(f"IsoDir only supports the cosine v[..., 2], got {idx!r}")
+        return self.z
+
+    def tree_flatten(self):
+        return (self.z, self.t2), None
+
+    @classmethod
+    def tree_unflatten(cls, aux, children):
+        return cls(*children)
+
+
+def tan_sq(v, sx=1.0, sy=1.0):
+    """``(v_x s_x)^2 + (v_y s_y)^2`` of a ``(..., 3)`` array, :class:`Vec3` or :class:`IsoDir`
+    (there ``t2 s_x^2``: isotropic scales only): the tangential part of the stretched squared
+    length that every microfacet distribution reads."""
+    if isinstance(v, IsoDir):
+        return v.t2 * sq(sx)
+    return sq(v[..., 0] * sx) + sq(v[..., 1] * sy)
 
 
 def reflect(wo, m):

@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._math import Vec3, dot, normalize
+from ._math import IsoDir, Vec3, dot, normalize, tan_sq
 from .errors import ParameterError
 from .models import Blend, Lambert, Plastic, RoughConductor
 from .models._base import AbstractBSDF
@@ -50,6 +50,9 @@ class SoAPairs(eqx.Module):
         Reflection half vector ``normalize(wo + wi)`` (depends only on the directions).
     cos_d : jax.Array
         ``wo . h``, the cosine that the Fresnel term of a reflection lobe takes.
+    h_t2 : jax.Array
+        ``h_x^2 + h_y^2``, the half vector's squared sine, from its components (``1 - h_z^2``
+        would lose it to rounding near the normal, where ``D`` divides it by ``alpha^2``).
     n : int
         Number of valid pairs (the first ``n`` entries); static.
     """
@@ -58,11 +61,24 @@ class SoAPairs(eqx.Module):
     wi: Vec3
     h: Vec3
     cos_d: jax.Array
+    h_t2: jax.Array
     n: int = eqx.field(static=True)
+
+    @classmethod
+    def from_directions(cls, wo: Vec3, wi: Vec3, n: int) -> "SoAPairs":
+        """The pairs of component directions ``wo``, ``wi`` (already padded and placed), with
+        their direction-only quantities computed once."""
+        h, cos_d = half_vector(wo, wi)
+        return cls(wo, wi, h, cos_d, _tan_sq(h), int(n))
 
     @property
     def n_padded(self):
         return int(self.wo.x.shape[0])
+
+    def isotropic(self):
+        """``(wo, wi, h)`` as :class:`~matfit._math.IsoDir`: what an isotropic microfacet lobe
+        reads of the pairs (the cosines; ``h``'s squared sine from :attr:`h_t2`)."""
+        return IsoDir.from_cos(self.wo.z), IsoDir.from_cos(self.wi.z), IsoDir(self.h.z, self.h_t2)
 
 
 def soa_pairs(wo, wi, dtype=None, devices=None) -> SoAPairs:
@@ -98,9 +114,7 @@ def soa_pairs(wo, wi, dtype=None, devices=None) -> SoAPairs:
             dtype = jnp.result_type(float)
     comps = tuple(np.ascontiguousarray(a[:, j], dtype=dtype) for a in (wo, wi) for j in range(3))
     sharded, n = shard_batch(comps, devices)
-    wo, wi = Vec3(*sharded[:3]), Vec3(*sharded[3:])
-    h, cos_d = half_vector(wo, wi)
-    return SoAPairs(wo, wi, h, cos_d, n)
+    return SoAPairs.from_directions(Vec3(*sharded[:3]), Vec3(*sharded[3:]), n)
 
 
 @jax.jit
@@ -119,6 +133,9 @@ def half_vector(wo, wi):
     """
     h = normalize(wo + wi)
     return h, dot(wo, h)
+
+
+_tan_sq = jax.jit(tan_sq)
 
 
 def supports_soa(model) -> bool:
@@ -173,12 +190,20 @@ def eval_channel(model: AbstractBSDF, pairs: SoAPairs, c: int):
     >>> round(float(eval_channel(Lambert(np.array([0.8, 0.5, 0.2])), soa_pairs(up, up), 1)[0]) * np.pi, 6)
     0.5
     """
-    mc = channel_model(model, c)
-    if isinstance(mc, RoughConductor):
-        f = mc.eval_half(pairs.wo, pairs.wi, pairs.h, pairs.cos_d)
-    else:
-        f = mc.eval(pairs.wo, pairs.wi)
-    return f[..., 0]
+    return _eval_pairs(channel_model(model, c), pairs)[..., 0]
+
+
+def _eval_pairs(m, pairs):
+    """``m.eval`` on the pairs, with their direction-only quantities: a rough conductor's lobe
+    takes the precomputed half vector, an isotropic one reads only cosines (:meth:`SoAPairs.isotropic`),
+    a blend evaluates its parts so."""
+    if isinstance(m, Blend):
+        return m.mix(_eval_pairs(m.a, pairs), _eval_pairs(m.b, pairs))
+    if isinstance(m, RoughConductor):
+        if m.alpha_y is None:
+            return m.eval_half(*pairs.isotropic(), pairs.cos_d)
+        return m.eval_half(pairs.wo, pairs.wi, pairs.h, pairs.cos_d)
+    return m.eval(pairs.wo, pairs.wi)
 
 
 @jax.jit

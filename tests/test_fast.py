@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import reference as R
-from matfit._math import Vec3, dot, normalize
+from matfit._math import IsoDir, Vec3, dot, normalize, reflect
 from matfit.errors import MatfitError, ParameterError
 from matfit.fast import channel_model, eval_soa, soa_pairs, supports_soa
 from matfit.microfacet import make_distribution
@@ -48,7 +48,7 @@ def _dirs(rng, n):
 
 # float32 only where the SoA kernels differ from the general path (the fallbacks call model.eval).
 CASES = [(n, np.float64) for n in _models(jnp.float32)] + [
-    (n, np.float32) for n in ("lambert", "ggx", "beckmann_hc", "beckmann_hc_aniso", "plastic_smooth")]
+    (n, np.float32) for n in ("lambert", "ggx", "beckmann_hc", "beckmann_hc_aniso", "blinn_phong", "plastic_smooth", "blend")]
 
 
 @pytest.mark.parametrize("name,dtype", CASES, ids=[f"{n}-{np.dtype(d).name}" for n, d in CASES])
@@ -86,6 +86,47 @@ def test_distributions_accept_vec3(kind, x64, rng):
         np.testing.assert_array_equal(d.G2(V(wo), V(wi), V(h), form), d.G2(jnp.asarray(wo), jnp.asarray(wi), jnp.asarray(h), form))
     np.testing.assert_array_equal(d.D(V(h)), d.D(jnp.asarray(h)))
     np.testing.assert_array_equal(d.Lambda(V(wo)), d.Lambda(jnp.asarray(wo)))
+
+
+
+def _iso(v):
+    return IsoDir(jnp.asarray(v[:, 2]), jnp.asarray(v[:, 0] ** 2 + v[:, 1] ** 2))
+
+
+@pytest.mark.parametrize("kind", ["ggx", "beckmann", "blinn_phong"])
+def test_isotropic_distributions_read_only_cosines(kind, x64, rng):
+    # An isotropic lobe of a reflection pair depends on the cosines and h's squared sine only:
+    # D, Lambda and G2 on IsoDir equal those on the vectors (another order of operations).
+    d = make_distribution(kind, 0.25)
+    wo, wi = (R.random_directions(rng, 300, "upper", 1e-4) for _ in range(2))
+    h = np.asarray(normalize(jnp.asarray(wo + wi)))
+    for form in ("separable", "height_correlated"):
+        np.testing.assert_allclose(d.G2(_iso(wo), _iso(wi), _iso(h), form), d.G2(wo, wi, h, form), rtol=1e-12)
+    # Blinn-Phong's D is exp(e log cos): far out (D ~ 1e-294) the exponent amplifies rounding.
+    np.testing.assert_allclose(d.D(_iso(h)), d.D(jnp.asarray(h)), rtol=1e-9)
+    # Lambda enters as 1 + Lambda: tiny values (Beckmann's ~exp(-1/tan^2)) compared absolutely.
+    np.testing.assert_allclose(d.Lambda(IsoDir.from_cos(jnp.asarray(wo[:, 2]))), d.Lambda(jnp.asarray(wo)),
+                               rtol=1e-12, atol=1e-15)
+    assert np.all(np.asarray(d.G2(_iso(wo), _iso(wi), _iso(h))) > 0)
+    with pytest.raises(TypeError, match="cosine"):
+        _iso(wo)[..., 0]
+
+
+def test_float32_kernel_keeps_sharp_peaks(rng, x64):
+    # The cosine-only kernel takes h's squared sine from its components (SoAPairs.h_t2): near the
+    # peak of a sharp lobe 1 - h_z^2 would keep ~2 digits of it in float32 (D off by percents).
+    # Against the float64 reference on the same (float32-rounded) directions: float32 rounding.
+    alpha = 2e-3
+    wo = R.random_directions(rng, 400, "upper", 0.2)
+    m = R.random_normals_near_z(rng, 400, alpha, spread=2.0)
+    wi = np.asarray(reflect(jnp.asarray(wo), jnp.asarray(m)))
+    keep = wi[:, 2] > 0.05
+    wo, wi = (v[keep].astype(np.float32) for v in (wo, wi))
+    model = RoughConductor(jnp.float32(alpha), jnp.asarray(ETA, jnp.float32), jnp.asarray(K, jnp.float32))
+    out = eval_soa(model, soa_pairs(wo, wi, dtype=np.float32), stack=True)
+    ref = R.conductor_eval(wo, wi, R.Dist("ggx", alpha), ETA, K)
+    assert np.min(ref) > 1.0  # on the peak
+    R.assert_rel(out, ref, 1e-3, 1e-30, "float32 eval_soa near a sharp peak", wo=wo, wi=wi)
 
 
 def test_vec3_behaves_like_a_direction_array(x64):

@@ -132,3 +132,30 @@ def test_step_cap(cap, x64):
     # Many capped steps still make progress towards the bound, at most `cap` per step.
     z5, F5, steps = lm_fd(_saturating, z0, None, seeds, owner, max_steps=5, max_step=cap)[:3]
     assert 0 < float(z5[0]) <= 5 * cap + 1e-9 and int(steps) == 5
+
+
+def _exp_decay(z, xy):
+    x, y = xy
+    return (z[0] * jnp.exp(-z[1] * x) - y)[:, None]
+
+
+def test_float32_fit_stops_at_its_rounding_floor(x64):
+    """At a float32 minimum the trial steps are rejected for rounding: the solver stops at the first
+    one whose actual and predicted changes are within the tolerance (MINPACK's ftol test), not
+    after max_reject of them, and at the float64 minimum to float32 precision."""
+    rng = np.random.default_rng(3)
+    x = np.linspace(0, 4, 2000)
+    y = 2.0 * np.exp(-1.3 * x) + 0.01 * rng.standard_normal(x.size)
+    seeds, owner = np.eye(2), np.ones((1, 2))
+    out = {}
+    for dt in (jnp.float32, jnp.float64):
+        args = (jnp.asarray(x, dt), jnp.asarray(y, dt))
+        out[dt] = lm_fd(_exp_decay, jnp.array([1.0, 0.5], dt), args, seeds, owner, max_steps=100, max_reject=12)
+    z, F, steps, ok, _, evals = out[jnp.float32]
+    per_jac = 2 * 2  # central differences in float32, two groups
+    rejected = int(evals) - (1 + per_jac) - int(steps) * (1 + per_jac)
+    assert bool(ok) and int(steps) < 100
+    assert rejected <= 1, f"{rejected} rejected trial steps"
+    F64 = float(out[jnp.float64][1])
+    assert abs(float(F) - F64) <= 1e-5 * F64
+    np.testing.assert_allclose(np.asarray(z), np.asarray(out[jnp.float64][0]), rtol=1e-3)

@@ -18,7 +18,7 @@ import numpy as np
 
 from .._math import Vec3
 from ..errors import MatfitError, ParameterError
-from ..fast import SoAPairs, eval_channel, half_vector, supports_soa
+from ..fast import SoAPairs, eval_channel, supports_soa
 from ..parallel import device_count, shard_batch
 from ..table import Table
 from ._conductor_guess import conductor_guess, curve_readable
@@ -131,7 +131,7 @@ def _split_residual_fn(par, loss, robust, scale):
         values, weight = (jnp.concatenate([a, jnp.zeros((pad,) + a.shape[1:], a.dtype)]) for a in (values, weight))
         target, factor = prepare_targets(values, weight, wi[:, 2], loss)
         o, i = Vec3.from_array(wo), Vec3.from_array(wi)
-        return SoAPairs(o, i, *half_vector(o, i), int(wo.shape[0])), target.T, factor.T
+        return SoAPairs.from_directions(o, i, wo.shape[0]), target.T, factor.T
 
     def fn(z, prepared):
         pairs, target, factor = prepared

@@ -51,10 +51,13 @@ Stopping
     most ``max(rtol, 4 eps) * F + atol`` or moved ``z`` by at most ``rtol (rtol + |z|)`` (2-norms):
     the ``ftol``/``xtol`` rule of ``scipy.optimize.least_squares``, either one sufficing (a
     parameter drifting towards a bound through a saturating sigmoid keeps taking steps of constant
-    length while the objective has stopped changing); when the gradient's largest entry is at most
-    ``atol``; or when no decrease is possible any more (``max_reject`` consecutive rejected steps:
-    the objective is at its floating-point floor). Otherwise the loop stops after ``max_steps``
-    Jacobians.
+    length while the objective has stopped changing); after the first trial step from a point,
+    accepted or not, whose actual and predicted changes of the objective are both within
+    ``max(rtol, 4 eps) * F + atol`` (MINPACK's ``ftol`` test, Moré 1978: the quadratic model has
+    nothing left to gain; in float32 a converged fit's next trial steps are rejected for
+    rounding, and would otherwise run on to ``max_reject``); when the gradient's largest entry is at most ``atol``; or when no decrease
+    is possible any more (``max_reject`` consecutive rejected steps: the objective is at its
+    floating-point floor). Otherwise the loop stops after ``max_steps`` Jacobians.
 
 References
 ----------
@@ -336,7 +339,13 @@ def lm_fd(fn, z0, args, seeds, owner, max_steps=100, rtol=1e-8, atol=1e-10, cent
         small_z = jnp.linalg.norm(delta) <= rtol * (rtol + jnp.linalg.norm(s.z))
         small_g = jnp.max(jnp.abs(g)) <= atol
         rejects = jnp.where(acc, 0, s.rejects + 1)
-        stop = (acc & (((small_f | small_z) & (rho > 0.25)) | small_g)) | (rejects >= max_reject)
+        # MINPACK's ftol test (More 1978) on the first trial step from a point, accepted or not:
+        # the actual and the predicted change both within the tolerance, so the quadratic model
+        # has nothing left to gain (in float32 the rejected steps of a converged fit would
+        # otherwise run up to max_reject). Not after rejections: a damping raised by them shrinks
+        # the predicted change of any point.
+        flat_f = (s.rejects == 0) & (jnp.abs(s.F - F_new) <= f_tol * s.F + atol) & (pred <= f_tol * s.F + atol)
+        stop = (acc & (((small_f | small_z) & (rho > 0.25)) | small_g)) | flat_f | (rejects >= max_reject)
         return _State(z_new, F_c, A, g, r, mu, nu, s.steps + acc.astype(s.steps.dtype), s.evals + 1 + acc * per_jac,
                       stop, stop, rejects, jnp.maximum(s.D, jnp.diag(A)))
 

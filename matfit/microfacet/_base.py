@@ -8,7 +8,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import jax.scipy.special as jsp
 
-from .._math import COS_EPS, dot, flip_up, normalize, safe_div, sq
+from .._math import COS_EPS, IsoDir, dot, flip_up, normalize, safe_div, sq, tan_sq
 
 #: Roughness values below this are clamped to it inside the distributions, so that D stays
 #: representable in float32 (D(n) = 1/(pi alpha^2) ~ 3e7). Below ALPHA_MIN use the smooth models.
@@ -77,13 +77,13 @@ class AbstractDistribution(eqx.Module):
         """Stretched squared slope (mx^2/ax^2 + my^2/ay^2) / mz^2 for m_z > 0 (else inf-safe)."""
         ax, ay = self._alphas()
         mz2 = jnp.maximum(sq(m[..., 2]), COS_EPS * COS_EPS)
-        return (sq(m[..., 0] * (1 / ax)) + sq(m[..., 1] * (1 / ay))) / mz2
+        return tan_sq(m, 1 / ax, 1 / ay) / mz2
 
     def _a2tan2(self, v):
         """Projected roughness times tan^2: (vx^2 ax^2 + vy^2 ay^2) / vz^2."""
         ax, ay = self._alphas()
         vz2 = jnp.maximum(sq(v[..., 2]), COS_EPS * COS_EPS)
-        return (sq(v[..., 0] * ax) + sq(v[..., 1] * ay)) / vz2
+        return tan_sq(v, ax, ay) / vz2
 
     def _normal_from_radius(self, r, u_phi):
         """Microfacet normal for the alpha = 1 slope radius ``r`` at azimuth ``2 pi u_phi``,
@@ -94,14 +94,18 @@ class AbstractDistribution(eqx.Module):
         return normal_from_slopes(ax * r * jnp.cos(phi), ay * r * jnp.sin(phi))
 
     def _g1_ratio(self, v):
-        """``(num, den)`` with :math:`1 / (1 + \Lambda(v))` = ``num / den``: one division for
+        r"""``(num, den)`` with :math:`1 / (1 + \Lambda(v))` = ``num / den``: one division for
         :meth:`G1`, and one for both factors of the separable :meth:`G2`. A distribution with a
         closed form of its own (GGX) overrides it."""
         return 1.0, 1 + self.Lambda(v)
 
     @staticmethod
     def _visible(v, m):
-        """The local visibility indicator :math:`\chi^+((v\cdot m)(v\cdot n))` of Smith's masking."""
+        r"""The local visibility indicator :math:`\chi^+((v\cdot m)(v\cdot n))` of Smith's masking
+        (for an :class:`~matfit._math.IsoDir`, :math:`v_z > 0`: ``m`` is then its reflection
+        half vector, so :math:`v\cdot m > 0`)."""
+        if isinstance(v, IsoDir):
+            return v.z > 0
         return dot(v, m) * v[..., 2] > 0
 
     def G1(self, v, m):

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from .._math import sq
+from .._math import IsoDir, sq, tan_sq
 from ._base import AbstractDistribution
 from .beckmann import beckmann_lambda
 
@@ -42,6 +42,8 @@ class BlinnPhong(AbstractDistribution):
 
     def _e_phi(self, m):
         ex, ey = self.exponent
+        if isinstance(m, IsoDir):  # no azimuth: isotropic
+            return ex
         rxy2 = sq(m[..., 0]) + sq(m[..., 1])
         # cos^2 phi; within machine epsilon of the normal the azimuth is irrelevant (and the
         # quotient's derivative -mx^2/rxy2^2 would underflow to 0/0).
@@ -54,7 +56,7 @@ class BlinnPhong(AbstractDistribution):
         mz = m[..., 2]
         pos = mz > 0
         # cos^e = exp(e log cos): log cos from sin^2 by log1p keeps float32 accurate at e ~ 1e6.
-        sin2 = jnp.minimum(sq(m[..., 0]) + sq(m[..., 1]), 1.0)
+        sin2 = jnp.minimum(tan_sq(m), 1.0)
         # Near the normal log1p(-sin^2) is exact; near grazing log(m_z) is (no cancellation).
         near = sq(mz) >= 0.5
         log_cos = jnp.where(near, 0.5 * jnp.log1p(-jnp.where(near, sin2, 0.0)), jnp.log(jnp.where(pos & ~near, mz, 1.0)))

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from .._math import flip_up, normalize, safe_sqrt, sq
+from .._math import flip_up, normalize, safe_sqrt, sq, tan_sq
 from ._base import AbstractDistribution
 
 
@@ -43,7 +43,7 @@ class GGX(AbstractDistribution):
         ax, ay = self._alphas()
         mz2 = sq(m[..., 2])
         # 1 / alpha once per model, not a division per normal
-        t = sq(m[..., 0] * (1 / ax)) + sq(m[..., 1] * (1 / ay)) + mz2
+        t = tan_sq(m, 1 / ax, 1 / ay) + mz2
         d = 1 / (jnp.pi * ax * ay * sq(t))
         return jnp.where(m[..., 2] > 0, d, 0)
 
@@ -57,7 +57,7 @@ class GGX(AbstractDistribution):
         # al. 2007, Eq. 34, times |v_z| / |v_z|): no division inside, none by v_z, no cancellation.
         ax, ay = self._alphas()
         vz = jnp.abs(v[..., 2])
-        return 2 * vz, vz + jnp.sqrt(sq(v[..., 2]) + sq(v[..., 0] * ax) + sq(v[..., 1] * ay))
+        return 2 * vz, vz + jnp.sqrt(sq(v[..., 2]) + tan_sq(v, ax, ay))
 
     def sample_dcos(self, u):
         u1 = u[..., 0]

@@ -64,8 +64,12 @@ class Blend(AbstractBSDF):
 
     def eval(self, wo, wi):
         check_directions("Blend.eval", wo=wo, wi=wi)
+        return self.mix(self.a.eval(wo, wi), self.b.eval(wo, wi))
+
+    def mix(self, fa, fb):
+        """``(1 - weight) fa + weight fb`` for values ``fa``, ``fb`` (..., C) of the two parts."""
         w = self.weight[..., None]
-        return (1 - w) * self.a.eval(wo, wi) + w * self.b.eval(wo, wi)
+        return (1 - w) * fa + w * fb
 
     def pdf(self, wo, wi):
         check_directions("Blend.pdf", wo=wo, wi=wi)

@@ -82,9 +82,12 @@ class RoughConductor(AbstractMicrofacetBSDF):
         d = self.dist()
         # double where: invalid pairs (at or below the horizon) are evaluated at the normal
         wo, wi, h = where_up(ok, wo), where_up(ok, wi), where_up(ok, h)
-        spec = d.D(h) * d.G2(wo, wi, h, self.masking) / (4 * wo[..., 2] * wi[..., 2])
-        F = fresnel_conductor(jnp.where(ok, cos_d, 1)[..., None], self.eta, self.k)
-        return jnp.where(ok[..., None], spec[..., None] * F, 0)
+        # 0 on invalid pairs through the denominator (inf there), inside the division: XLA keeps
+        # the guard in the loop that computes spec, and F is guarded by spec alone, so a kernel
+        # per channel reads only spec and cos_d, not the directions again (matfit.fast).
+        spec = d.D(h) * d.G2(wo, wi, h, self.masking) / jnp.where(ok, 4 * wo[..., 2] * wi[..., 2], jnp.inf)
+        F = fresnel_conductor(jnp.where(spec > 0, cos_d, 1)[..., None], self.eta, self.k)
+        return spec[..., None] * F
 
     def pdf(self, wo, wi):
         check_directions("RoughConductor.pdf", wo=wo, wi=wi)
