@@ -49,6 +49,7 @@ else
     --out "$OUT_DIR/fit_merl_conductor.json"
   step batched 90 $PY benchmarks/bench_batched.py --scipy-texels 100 --repeats 3
   step emcee 60 $PY benchmarks/bench_emcee.py --steps 2000 --numpy-steps 150 --repeats 3
-  step eval 170 $PY benchmarks/bench_eval.py --n 8000000 --numpy-n 1000000 --repeat 5 --mitsuba-variant cuda_ad_rgb
+  step eval 170 $PY benchmarks/bench_eval.py --n 8000000 --numpy-n 1000000 --repeat 5 --mitsuba-variant cuda_ad_rgb \
+    --models lambert,conductor_ggx,conductor_ggx_aniso,conductor_beckmann,blend_lambert_ggx,plastic_smooth
 fi
 ls -la "$OUT_DIR"

@@ -281,6 +281,8 @@ def initial_guess(table: Table, par: Parametrization):
 
 def _percentile10(v, valid):
     """``np.percentile(v[b][valid[b]], 10, axis=0)`` for every b at once (linear interpolation)."""
+    if v.shape[0] == 1:  # one (large) table: numpy's partition, not a sort of every row
+        return np.percentile(v[0][valid[0]], 10, axis=0)[None]
     n = valid.sum(axis=1)  # (B,)
     srt = np.sort(np.where(valid[..., None], v, np.inf), axis=1)  # invalid rows last
     pos = 0.1 * (n - 1)
@@ -322,12 +324,13 @@ def initial_guesses(tables, par: Parametrization):
     rows = np.arange(B)
     floor = _percentile10(V, M)  # (B, C)
     mean = V.mean(axis=2)
-    h = WO + WI
-    h /= np.maximum(np.linalg.norm(h, axis=2, keepdims=True), 1e-12)
+    s = WO + WI
+    hz = s[..., 2] / np.maximum(np.sqrt(np.einsum("bni,bni->bn", s, s)), 1e-12)  # the half vector's cosine
     excess = np.where(M, mean - np.where(M, mean, np.inf).min(axis=1, keepdims=True), -np.inf)
     emax = excess.max(axis=1, keepdims=True)
     top = M & np.where(emax > 0, excess >= 0.5 * emax, True)
-    th = np.where(top, np.arccos(np.clip(h[..., 2], -1, 1)), -np.inf).max(axis=1)
+    # the largest theta_h among the top rows: arccos of their smallest cosine
+    th = np.arccos(np.clip(np.where(top, hz, np.inf).min(axis=1), -1, 1))
     alpha = np.clip(np.tan(np.minimum(th, 1.3)) / np.sqrt(np.sqrt(2) - 1), 0.02, 0.8)
     ipk = np.argmax(np.where(M, mean * np.abs(WI[..., 2]), -np.inf), axis=1)
     peak = V[rows, ipk] - floor
@@ -346,7 +349,8 @@ def initial_guesses(tables, par: Parametrization):
         # the Fresnel curve read off the table (matfit.fitting._conductor_guess): eta = 1 and the
         # half-width alpha start in the basin of a bound (eta -> 8, k -> 0) for many metals
         bounds = {p.name: (p.lower, p.upper) for p in par.family.params}
-        for b in np.flatnonzero(curve_readable(WO, WI, V, M)):
+        # conductor_guess checks the table itself; curve_readable only spares a batch its loop
+        for b in (range(B) if B == 1 else np.flatnonzero(curve_readable(WO, WI, V, M))):
             g = conductor_guess(WO[b][M[b]], WI[b][M[b]], V[b][M[b]], alpha[b], _CONDUCTOR_DISTRIBUTION[par.family.name],
                                 bounds["eta"], bounds["k"])
             if g is not None:
