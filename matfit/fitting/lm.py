@@ -133,6 +133,30 @@ def _differences(fn, z, args, seeds, owner, central, r, stacked=True):
     return K, _group_map(seeds, owner, h, central), r
 
 
+def _concrete(seeds):
+    """``seeds`` as a numpy array when its values are known while tracing, else None."""
+    try:
+        return np.asarray(seeds)
+    except jax.errors.TracerArrayConversionError:
+        return None
+
+
+def _shifted(z, seed, h):
+    """``z + seed * h`` for a 0/1 group ``seed`` (a constant), assembled from slices of ``z``: the
+    coordinates outside the group are then ``z``'s own slices, and XLA recognizes what the
+    perturbed evaluations share with each other (a rough conductor's lobe, which depends on
+    ``alpha`` only, is computed once for the ``eta`` and ``k`` groups instead of once per group).
+    A traced ``seed`` takes the plain ``z + seed * h``."""
+    if isinstance(seed, jax.core.Tracer) or isinstance(seed, jax.Array):
+        return z + seed * h
+    on = np.asarray(seed) != 0
+    cuts = np.flatnonzero(np.diff(on.astype(int))) + 1
+    parts = []
+    for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, on.size]):
+        parts.append(z[lo:hi] + h[lo:hi] if on[lo] else z[lo:hi])
+    return jnp.concatenate(parts)
+
+
 def _group_map(seeds, owner, h, central):
     """``E`` (C, G, p): column ``j`` of channel ``c`` is ``K[g] / h_j`` for the group ``g`` of ``j``."""
     return seeds[None, :, :] * owner[:, None, :] / ((2 * h) if central else h)
@@ -169,16 +193,16 @@ def _channel_moments(fn, z, args, seeds, owner, central, r, wide=False):
     single-output loop), their differences are materialized (an optimization barrier: otherwise
     XLA fuses the model into every product of the Gram matrix and recomputes it there), and each
     channel's Gram matrix of ``[K_0 .. K_{G-1}, r]`` is one blocked reduction."""
+    groups = _concrete(seeds)
     seeds = jnp.asarray(seeds, z.dtype)
     owner = jnp.asarray(owner, z.dtype)
     if r is None:
         r = tuple(fn(z, args))
     h = _steps(z, central)
-    D = seeds * h
     K = []
-    for d in D:
-        plus = fn(z + d, args)
-        base = fn(z - d, args) if central else r
+    for seed in (seeds if groups is None else groups):
+        plus = fn(_shifted(z, seed, h), args)
+        base = fn(_shifted(z, seed, -h), args) if central else r
         K.append(tuple(a - b for a, b in zip(plus, base)))
     K, r = jax.lax.optimization_barrier((K, tuple(r)))
     G = len(K)
