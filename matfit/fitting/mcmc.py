@@ -67,6 +67,8 @@ import numpy as np
 
 from ..errors import MatfitError, ParameterError
 from ..table import Table
+from ..fast import supports_soa
+from .fit import _split_residual_fn
 from .losses import check_loss, prepare_targets, residuals_from_targets
 from .params import Parametrization, get_family
 
@@ -94,23 +96,36 @@ def _compiled(family, channels, fixed_items, tied, loss, noise):
     lo, hi = par.lower_upper()
     uni = np.where(np.isfinite(hi), -np.log(np.where(np.isfinite(hi), hi - lo, 1.0)), 0.0)
     ls_lo, ls_hi = (math.log(b) for b in NOISE_SCALE_BOUNDS)
+    # Models of matfit.fast's structure-of-arrays path take the fit's channel-split residuals
+    # (one single-output kernel per channel, an isotropic lobe on cosines only): 1.3x faster for
+    # 16 points of 2048 rows. Their per-element arrays are laid out (C, n) then.
+    soa = supports_soa(par.model(jnp.zeros(p)))
+    split_prepare, split_fn = _split_residual_fn(par, loss, None, 1.0)
 
     def one(x, args):
-        # target, factor: the data's part of the residuals (losses.prepare_targets), and t the
-        # residual of a zero prediction: they depend on the table only, so make_log_prob computes
-        # them once (no speed change was measurable for 16 points of 2048 rows).
-        wo, wi, target, factor, t, usable, floor, pmask, pmean, psd, logw_sum, n = args
+        # data, target, factor: the directions and the data's part of the residuals
+        # (losses.prepare_targets), and t the residual of a zero prediction: they depend on the
+        # table only, so make_log_prob computes them once.
+        data, target, factor, t, usable, floor, pmask, pmean, psd, logw_sum, n = args
         z = x[:p]
-        pred = par.model(z).eval(wo, wi)
-        r = residuals_from_targets(pred, target, factor, wi[..., 2], loss)
+        if soa:  # tuples over the channels
+            r = split_fn(z, (data, target, factor))
+            t, usable = tuple(t), tuple(usable)
+        else:
+            wo, wi = data
+            r = (residuals_from_targets(par.model(z).eval(wo, wi), target, factor, wi[..., 2], loss),)
+            t, usable = (t,), (usable,)
         if noise == "table":
-            ll = -0.5 * jnp.sum(r * r) + 0.5 * logw_sum - 0.5 * n * _LOG2PI
+            ll = -0.5 * sum(jnp.sum(rc * rc) for rc in r) + 0.5 * logw_sum - 0.5 * n * _LOG2PI
             lp_noise = 0.0
         else:
             logs = x[p]
-            sig = jnp.exp(logs) * t + floor
-            sig = jnp.where(usable, sig, 1.0)
-            ll = jnp.sum(jnp.where(usable, -0.5 * (r / sig) ** 2 - jnp.log(sig), 0.0)) - 0.5 * n * _LOG2PI
+
+            def ll_part(rc, tc, uc):
+                sig = jnp.where(uc, jnp.exp(logs) * tc + floor, 1.0)
+                return jnp.sum(jnp.where(uc, -0.5 * (rc / sig) ** 2 - jnp.log(sig), 0.0))
+
+            ll = sum(ll_part(*parts) for parts in zip(r, t, usable)) - 0.5 * n * _LOG2PI
             lp_noise = jnp.where((logs >= ls_lo) & (logs <= ls_hi), -math.log(ls_hi - ls_lo), -jnp.inf)
         theta = par.theta_vector(z)
         gauss = -0.5 * ((theta - pmean) / psd) ** 2 - jnp.log(psd) - 0.5 * _LOG2PI
@@ -120,7 +135,8 @@ def _compiled(family, channels, fixed_items, tied, loss, noise):
 
     batched = jax.jit(jax.vmap(one, in_axes=(0, None)))
     to_natural = jax.jit(par.theta_vector)
-    return par, batched, to_natural
+    prepare = jax.jit(split_prepare) if soa else None
+    return par, batched, to_natural, prepare
 
 
 def _fixed_items(fixed):
@@ -231,7 +247,7 @@ def make_log_prob(table, model="plastic", fixed=None, tied=(), loss="l2", noise=
                              "use noise='fit' to sample a relative noise scale instead")
     if isinstance(tied, str):
         tied = (tied,)
-    par, batched, to_natural = _compiled(model, table.n_channels, _fixed_items(fixed), tuple(tied), loss, noise)
+    par, batched, to_natural, prepare = _compiled(model, table.n_channels, _fixed_items(fixed), tuple(tied), loss, noise)
     pmask, pmean, psd, pdesc = _prior_arrays(prior, par)
     weight = table.effective_weight()
     n_res = int(np.count_nonzero(weight > 0))
@@ -259,7 +275,13 @@ def make_log_prob(table, model="plastic", fixed=None, tied=(), loss="l2", noise=
         raise ParameterError("sample_posterior: noise_floor is only used with noise='fit'")
     # sum of log(1 / sigma^2) over the usable residuals: the same for every point, computed once
     logw_sum = float(np.sum(np.log(weight[usable])))
-    args = (a.wo, a.wi, target, factor, t_zero, jnp.asarray(usable), jnp.asarray(floor, dt), jnp.asarray(pmask),
+    usable = jnp.asarray(usable)
+    data = (a.wo, a.wi)
+    if prepare is not None:  # the structure-of-arrays layout, (C, n_padded) per-element arrays
+        data, target, factor = prepare((a.wo, a.wi, a.values, w))
+        pad = ((0, data.n_padded - a.wo.shape[0]), (0, 0))
+        t_zero, usable = jnp.pad(t_zero, pad).T, jnp.pad(usable, pad).T
+    args = (data, target, factor, t_zero, usable, jnp.asarray(floor, dt), jnp.asarray(pmask),
             jnp.asarray(pmean, dt), jnp.asarray(psd, dt), jnp.asarray(logw_sum, dt), jnp.asarray(n_res, dt))
     lp = LogProb(par, batched, to_natural, args, noise, pdesc, block or 8, dt)
     lp.noise_floor = floor
