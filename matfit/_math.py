@@ -120,7 +120,6 @@ class Vec3:
         return cls(*children)
 
 
-
 @jax.tree_util.register_pytree_node_class
 class IsoDir:
     r"""A direction known only by its polar angle: ``z`` = :math:`\cos\theta` and ``t2`` =

@@ -55,9 +55,10 @@ Stopping
     accepted or not, whose actual and predicted changes of the objective are both within
     ``max(rtol, 4 eps) * F + atol`` (MINPACK's ``ftol`` test, Moré 1978: the quadratic model has
     nothing left to gain; in float32 a converged fit's next trial steps are rejected for
-    rounding, and would otherwise run on to ``max_reject``); when the gradient's largest entry is at most ``atol``; or when no decrease
-    is possible any more (``max_reject`` consecutive rejected steps: the objective is at its
-    floating-point floor). Otherwise the loop stops after ``max_steps`` Jacobians.
+    rounding, and would otherwise run on to ``max_reject``); when the gradient's largest entry
+    is at most ``atol``; or when no decrease is possible any more (``max_reject`` consecutive
+    rejected steps: the objective is at its floating-point floor). Otherwise the loop stops
+    after ``max_steps`` Jacobians.
 
 References
 ----------

@@ -66,8 +66,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import MatfitError, ParameterError
-from ..table import Table
 from ..fast import supports_soa
+from ..table import Table
 from .fit import _split_residual_fn
 from .losses import check_loss, prepare_targets, residuals_from_targets
 from .params import Parametrization, get_family
@@ -247,7 +247,8 @@ def make_log_prob(table, model="plastic", fixed=None, tied=(), loss="l2", noise=
                              "use noise='fit' to sample a relative noise scale instead")
     if isinstance(tied, str):
         tied = (tied,)
-    par, batched, to_natural, prepare = _compiled(model, table.n_channels, _fixed_items(fixed), tuple(tied), loss, noise)
+    par, batched, to_natural, prepare = _compiled(model, table.n_channels, _fixed_items(fixed), tuple(tied), loss,
+                                                  noise)
     pmask, pmean, psd, pdesc = _prior_arrays(prior, par)
     weight = table.effective_weight()
     n_res = int(np.count_nonzero(weight > 0))
