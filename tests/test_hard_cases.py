@@ -612,3 +612,38 @@ def test_property_blend(weight, albedo, alpha, eta, k, d, u):
     m = Blend(Lambert(np.asarray(albedo, HDT)), RoughConductor(HDT(alpha), np.asarray(eta, HDT), np.asarray(k, HDT)),
               HDT(weight))
     _check_prop(m, *_dirs(d), u)
+
+
+# --------------------------------------------------------------------------------------------
+# The fast path (matfit.fast: cosine-only isotropic lobes) on the same hard cases
+# --------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("dtn", list(DTYPES))
+@pytest.mark.parametrize("dist", ["ggx", "beckmann", "blinn_phong"])
+def test_fast_path_hard_cases(dist, dtn):
+    from matfit.fast import eval_soa, soa_pairs
+
+    dt = DTYPES[dtn]
+    z = np.array(Z_REFL)
+    zo, zi = (a.ravel() for a in np.meshgrid(z, z))
+    wo = unit(zo, 0.3 + 0 * zo)
+    wi = unit(zi, 2.5 + 0 * zi)
+    wi = np.concatenate([wi, wo])  # and the mirror pairs (h on the normal)
+    wo = np.concatenate([wo, unit(zo, 0.3 + np.pi + 0 * zo)])
+    pairs = soa_pairs(wo, wi, dtype=dt)
+    grad = jax.jit(jax.grad(lambda mm, p: sum(jnp.sum(c) for c in eval_soa(mm, p))))  # one compile per structure
+    general = jax.jit(lambda mm, a, b: mm.eval(a, b))
+    wo_j, wi_j = jnp.asarray(wo, dt), jnp.asarray(wi, dt)
+    for alpha in (ALPHAS_BP if dist == "blinn_phong" else ALPHAS):
+        for eta, k in COND:
+            m = RoughConductor(jnp.asarray(alpha, dt), jnp.asarray(eta, dt), jnp.asarray(k, dt), dist)
+            blend = Blend(Lambert(jnp.asarray([0.5, 0.4, 0.3], dt)), m, jnp.asarray(0.6, dt))
+            for model in (m, blend):
+                f = np.asarray(eval_soa(model, pairs, stack=True))
+                ref = np.asarray(general(model, wo_j, wi_j))
+                case = f"{type(model).__name__} {dist} alpha={alpha} eta={eta} k={k}"
+                assert np.all(np.isfinite(f)) and np.all(f >= 0), case
+                tol = 1e-12 if dt == np.float64 else 3e-5
+                np.testing.assert_allclose(f, ref, rtol=tol, atol=tol * 1e-3 * max(np.max(np.abs(ref)), 1e-30),
+                                           err_msg=case)
+                for leaf in jax.tree_util.tree_leaves(grad(model, pairs)):
+                    assert np.all(np.isfinite(np.asarray(leaf))), f"gradient: {case}"
