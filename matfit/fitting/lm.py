@@ -134,23 +134,16 @@ def _differences(fn, z, args, seeds, owner, central, r, stacked=True):
     return K, _group_map(seeds, owner, h, central), r
 
 
-def _concrete(seeds):
-    """``seeds`` as a numpy array when its values are known while tracing, else None."""
-    try:
-        return np.asarray(seeds)
-    except jax.errors.TracerArrayConversionError:
-        return None
-
-
 def _shifted(z, seed, h):
     """``z + seed * h`` for a 0/1 group ``seed`` (a constant), assembled from slices of ``z``: the
     coordinates outside the group are then ``z``'s own slices, and XLA recognizes what the
     perturbed evaluations share with each other (a rough conductor's lobe, which depends on
     ``alpha`` only, is computed once for the ``eta`` and ``k`` groups instead of once per group).
-    A traced ``seed`` takes the plain ``z + seed * h``."""
-    if isinstance(seed, jax.core.Tracer) or isinstance(seed, jax.Array):
-        return z + seed * h
-    on = np.asarray(seed) != 0
+    A ``seed`` whose values are unknown while tracing takes the plain ``z + seed * h``."""
+    try:
+        on = np.asarray(seed) != 0
+    except jax.errors.TracerArrayConversionError:
+        return z + jnp.asarray(seed, z.dtype) * h
     cuts = np.flatnonzero(np.diff(on.astype(int))) + 1
     parts = []
     for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, on.size]):
@@ -194,14 +187,11 @@ def _channel_moments(fn, z, args, seeds, owner, central, r, wide=False):
     single-output loop), their differences are materialized (an optimization barrier: otherwise
     XLA fuses the model into every product of the Gram matrix and recomputes it there), and each
     channel's Gram matrix of ``[K_0 .. K_{G-1}, r]`` is one blocked reduction."""
-    groups = _concrete(seeds)
-    seeds = jnp.asarray(seeds, z.dtype)
-    owner = jnp.asarray(owner, z.dtype)
     if r is None:
         r = tuple(fn(z, args))
     h = _steps(z, central)
     K = []
-    for seed in (seeds if groups is None else groups):
+    for seed in seeds:
         plus = fn(_shifted(z, seed, h), args)
         base = fn(_shifted(z, seed, -h), args) if central else r
         K.append(tuple(a - b for a, b in zip(plus, base)))
@@ -209,7 +199,8 @@ def _channel_moments(fn, z, args, seeds, owner, central, r, wide=False):
     G = len(K)
     cast = _wide if wide else (lambda x: x)
     P = jnp.stack([_gram([cast(Kg[c]) for Kg in K] + [cast(r[c])]) for c in range(len(r))])
-    return P[:, :G, :G], P[:, :G, G], _group_map(seeds, owner, h, central), r
+    E = _group_map(jnp.asarray(seeds, z.dtype), jnp.asarray(owner, z.dtype), h, central)
+    return P[:, :G, :G], P[:, :G, G], E, r
 
 
 def _moments(K, r):

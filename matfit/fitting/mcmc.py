@@ -100,7 +100,7 @@ def _compiled(family, channels, fixed_items, tied, loss, noise):
     # (one single-output kernel per channel, an isotropic lobe on cosines only): 1.3x faster for
     # 16 points of 2048 rows. Their per-element arrays are laid out (C, n) then.
     soa = supports_soa(par.model(jnp.zeros(p)))
-    split_prepare, split_fn = _split_residual_fn(par, loss, None, 1.0)
+    split_prepare, split_fn = _split_residual_fn(par, loss, None, 1.0) if soa else (None, None)
 
     def one(x, args):
         # data, target, factor: the directions and the data's part of the residuals
