@@ -134,6 +134,22 @@ def test_step_cap(cap, x64):
     assert 0 < float(z5[0]) <= 5 * cap + 1e-9 and int(steps) == 5
 
 
+def _saturated_and_linear(z, args):
+    """r0 = sigmoid(z0) - 1.2 (saturated at z0 = 6: its Gauss-Newton step is ~80), r1 = z1 - 2."""
+    return jnp.stack([jax.nn.sigmoid(z[0]) - 1.2, z[1] - 2.0])[:, None]
+
+
+def test_capped_coordinate_does_not_freeze_the_others(x64):
+    """A step that would move one coordinate beyond the cap holds that coordinate at the cap and
+    takes the full Gauss-Newton step in the others (scaling the whole step down would move z1 by
+    2 * 3 / 80 = 0.07 instead of 2)."""
+    seeds, owner = np.eye(2), np.ones((1, 2))
+    z1 = lm_fd(_saturated_and_linear, jnp.array([6.0, 0.0]), None, seeds, owner, max_steps=1, max_step=3.0,
+               tau=1e-12)[0]
+    assert float(z1[0]) == pytest.approx(9.0, rel=1e-9)
+    assert float(z1[1]) == pytest.approx(2.0, rel=1e-5)
+
+
 def _exp_decay(z, xy):
     x, y = xy
     return (z[0] * jnp.exp(-z[1] * x) - y)[:, None]
@@ -151,7 +167,7 @@ def test_float32_fit_stops_at_its_rounding_floor(x64):
     for dt in (jnp.float32, jnp.float64):
         args = (jnp.asarray(x, dt), jnp.asarray(y, dt))
         out[dt] = lm_fd(_exp_decay, jnp.array([1.0, 0.5], dt), args, seeds, owner, max_steps=100, max_reject=12)
-    z, F, steps, ok, _, evals = out[jnp.float32]
+    z, F, steps, ok, _, evals = out[jnp.float32][:6]
     per_jac = 2 * 2  # central differences in float32, two groups
     rejected = int(evals) - (1 + per_jac) - int(steps) * (1 + per_jac)
     assert bool(ok) and int(steps) < 100

@@ -118,9 +118,10 @@ def diagnose(*, labels, values, stderr, lower, upper, residuals, converged, step
     r = np.asarray(residuals, float)
     r = r[r != 0]
     if r.size >= 8:
-        mad = 1.4826 * np.median(np.abs(r - np.median(r)))
+        dev = np.abs(r - np.median(r))
+        mad = 1.4826 * np.median(dev)
         if mad > 1e-7 * data_scale and mad > 0:
-            z = np.abs(r - np.median(r)) / mad
+            z = dev / mad
             n_out = int(np.count_nonzero(z > OUTLIER_Z))
             # Gaussian noise gives P(|z| > 6) ~ 2e-9: a handful is already significant
             if n_out > max(2, 1e-4 * r.size):

@@ -184,8 +184,8 @@ def _solve_one(fn, method, z0, arrays, max_steps, rtol, atol, groups=None):
     import optimistix as optx
 
     if method == "lm_fd":
-        z, _, steps, ok, _, _ = lm_fd(fn, z0, arrays, *groups, max_steps=max_steps, rtol=rtol, atol=atol)
-        return z, steps, ok
+        res = lm_fd(fn, z0, arrays, *groups, max_steps=max_steps, rtol=rtol, atol=atol)
+        return res.z, res.steps, res.converged, res
 
     def obj(z, args):
         r = fn(z, args)
@@ -194,25 +194,48 @@ def _solve_one(fn, method, z0, arrays, max_steps, rtol, atol, groups=None):
     if method in ("lm", "gn", "dogleg"):
         solver = {"lm": optx.LevenbergMarquardt, "gn": optx.GaussNewton, "dogleg": optx.Dogleg}[method](rtol=rtol, atol=atol)
         sol = optx.least_squares(fn, solver, z0, args=arrays, max_steps=max_steps, throw=False)
-        return sol.value, sol.stats["num_steps"], sol.result == optx.RESULTS.successful
+        return sol.value, sol.stats["num_steps"], sol.result == optx.RESULTS.successful, None
     if method == "bfgs":
         sol = optx.minimise(obj, optx.BFGS(rtol=rtol, atol=atol), z0, args=arrays, max_steps=max_steps, throw=False)
-        return sol.value, sol.stats["num_steps"], sol.result == optx.RESULTS.successful
+        return sol.value, sol.stats["num_steps"], sol.result == optx.RESULTS.successful, None
     import jaxopt
 
     if method == "lbfgs":
         res = jaxopt.LBFGS(fun=obj, maxiter=max_steps, tol=atol).run(z0, arrays)
-        return res.params, res.state.iter_num, res.state.error <= atol
+        return res.params, res.state.iter_num, res.state.error <= atol, None
     res = jaxopt.LevenbergMarquardt(residual_fun=fn, maxiter=max_steps, xtol=rtol, gtol=atol).run(z0, arrays)
-    return res.params, res.state.iter_num, res.state.error <= atol
+    return res.params, res.state.iter_num, res.state.error <= atol, None
+
+
+#: Rows of the subsample a large table's ``lm_fd`` fit is first solved on (see :func:`_solver`).
+COARSE_ROWS = 65536
+
+
+def _coarse_rows(arrays):
+    """A fixed random subset of :data:`COARSE_ROWS` rows of a table's arrays, in table order; None
+    for tables of fewer than ``4 * COARSE_ROWS`` rows."""
+    n = arrays[0].shape[0]
+    if n < 4 * COARSE_ROWS:
+        return None
+    idx = np.sort(np.random.default_rng(0).choice(n, COARSE_ROWS, replace=False))
+    return tuple(a[idx] for a in arrays)
 
 
 @functools.lru_cache(maxsize=64)
 def _solver(family, channels, fixed_items, tied, method, loss, robust, scale, max_steps, rtol, atol, split=False):
     """Compiled multi-start solver for one configuration (cached: no recompilation).
 
+    Returns ``(par, run, run_full, objective)``. ``run(z0s, arrays) -> (z, objective, steps,
+    converged)`` for a stack of starts; ``run_full`` also returns the best start's index, its
+    residuals (flat) and ``J^T J`` (summed in float64 when x64 is on), for covariances.
+
     ``split``: ``lm_fd`` solves on channel-split residuals (:func:`_split_residual_fn`) when the
-    family's model supports them; single fits only (batched fits vmap the ``(N, C)`` form)."""
+    family's model supports them; single fits only (batched fits vmap the ``(N, C)`` form).
+    ``lm_fd`` on a table of at least ``4 * COARSE_ROWS`` rows (a full MERL table) first solves
+    on a fixed random subset of :data:`COARSE_ROWS` rows and starts the full solve where that one
+    ended: the subsample's iterations cost 1/16 of the full table's, and from there the full
+    solve takes a few (on a MERL conductor table 1-5 instead of 15-25), to the same stopping
+    tests (``docs/performance.md``)."""
     par = Parametrization(family, channels, dict(fixed_items), tied)
     prepare, fn = _prepared_residual_fn(par, loss, robust, scale)  # fn: (N, C) residuals
     flat = lambda z, a: fn(z, a).reshape(-1)  # noqa: E731  (the optimistix and jaxopt solvers)
@@ -223,27 +246,42 @@ def _solver(family, channels, fixed_items, tied, method, loss, robust, scale, ma
     groups = column_groups(par)
     objective = _objective_fn(prepare, fn)
 
-    def run(z0s, arrays):
+    def solve_all(z0s, arrays):
         prepared = solve_prepare(arrays)  # once, outside the solver's loop
-        solve = lambda z0: _solve_one(solve_fn, method, z0, prepared, max_steps, rtol, atol, groups)  # noqa: E731
+        sub = _coarse_rows(arrays) if method == "lm_fd" else None
+        coarse = None if sub is None else solve_prepare(sub)
+
+        def solve(z0):
+            if coarse is not None:
+                z0 = lm_fd(solve_fn, z0, coarse, *groups, max_steps=max_steps, rtol=rtol, atol=atol).z
+            return _solve_one(solve_fn, method, z0, prepared, max_steps, rtol, atol, groups)
+
         if z0s.shape[0] == 1:  # one start: no vmap, which would batch the model's loops
-            z, steps, ok = (x[None] for x in solve(z0s[0]))
+            z, steps, ok, res = jax.tree_util.tree_map(lambda x: x[None], solve(z0s[0]))
         else:
-            z, steps, ok = jax.vmap(solve)(z0s)
-        return z, objective(z, arrays), steps, ok
+            z, steps, ok, res = jax.vmap(solve)(z0s)
+        obj = res.F if method == "lm_fd" else objective(z, arrays)  # lm_fd: 0.5 |r|^2 at z, known
+        return prepared, z, obj, steps, ok, res
 
-    def gram(z, arrays):
-        """Residuals (N * C,) and J^T J (p, p) at z (summed in float64 when x64 is on)."""
+    def run(z0s, arrays):
+        return solve_all(z0s, arrays)[1:5]
+
+    def run_full(z0s, arrays):
+        prepared, z, obj, steps, ok, res = solve_all(z0s, arrays)
+        good = jnp.isfinite(obj) & jnp.all(jnp.isfinite(z), axis=1)
+        best = jnp.argmin(jnp.where(good, obj, jnp.inf))
+        zb = z[best]
         n = arrays[0].shape[0]
-        arrays = solve_prepare(arrays)
-        if method == "lm_fd":  # the solver's own Jacobian: grouped differences, no forward-mode AD
-            _, A, _, r = normal_equations(solve_fn, z, arrays, *groups, central=z.dtype == jnp.float32, wide=True)
-            r = jnp.stack(r, axis=-1) if split else r
-            return r[:n].reshape(-1), A
-        J = _wide(jax.jacfwd(flat)(z, arrays))  # float64 only when x64 is on (no truncation warning)
-        return flat(z, arrays), J.T @ J
+        if method != "lm_fd":
+            J = _wide(jax.jacfwd(flat)(zb, prepared))  # float64 only when x64 is on (no truncation warning)
+            return z, obj, steps, ok, best, flat(zb, prepared), J.T @ J
+        r, A = jax.tree_util.tree_map(lambda x: x[best], (res.r, res.A))
+        if _wide(A).dtype != A.dtype:  # the solver's own Jacobian at zb, its moments summed wide
+            _, A, _, r = normal_equations(solve_fn, zb, prepared, *groups, central=True, r=r, wide=True)
+        r = jnp.stack(r, axis=-1) if split else r
+        return z, obj, steps, ok, best, r[:n].reshape(-1), A
 
-    return par, jax.jit(run), jax.jit(gram), jax.jit(objective)
+    return par, jax.jit(run), jax.jit(run_full), jax.jit(objective)
 
 
 # --------------------------------------------------------------------------------------------
@@ -282,7 +320,7 @@ def initial_guess(table: Table, par: Parametrization):
 def _percentile10(v, valid):
     """``np.percentile(v[b][valid[b]], 10, axis=0)`` for every b at once (linear interpolation)."""
     if v.shape[0] == 1:  # one (large) table: numpy's partition, not a sort of every row
-        return np.percentile(v[0][valid[0]], 10, axis=0)[None]
+        return np.percentile(v[0] if valid[0].all() else v[0][valid[0]], 10, axis=0)[None]
     n = valid.sum(axis=1)  # (B,)
     srt = np.sort(np.where(valid[..., None], v, np.inf), axis=1)  # invalid rows last
     pos = 0.1 * (n - 1)
@@ -312,10 +350,11 @@ def initial_guesses(tables, par: Parametrization):
     >>> initial_guesses(tables, Parametrization("lambert", 3))["albedo"].shape
     (2, 3)
     """
-    V = np.stack([np.asarray(t.values, float) for t in tables])
-    M = np.stack([np.asarray(t.valid, bool) for t in tables])
-    WO = np.stack([np.asarray(t.wo, float) for t in tables])
-    WI = np.stack([np.asarray(t.wi, float) for t in tables])
+    stack = (lambda xs: np.asarray(xs[0])[None]) if len(tables) == 1 else np.stack  # one table: no copy
+    V = stack([np.asarray(t.values, float) for t in tables])
+    M = stack([np.asarray(t.valid, bool) for t in tables])
+    WO = stack([np.asarray(t.wo, float) for t in tables])
+    WI = stack([np.asarray(t.wi, float) for t in tables])
     empty = np.flatnonzero(~M.any(axis=1))
     if empty.size:
         raise FitError("the table has no valid rows" if len(tables) == 1 else
@@ -323,7 +362,7 @@ def initial_guesses(tables, par: Parametrization):
     B = len(tables)
     rows = np.arange(B)
     floor = _percentile10(V, M)  # (B, C)
-    mean = V.mean(axis=2)
+    mean = np.einsum("bnc->bn", V) / V.shape[2]  # (a mean over a short last axis is 3x slower)
     s = WO + WI
     hz = s[..., 2] / np.maximum(np.sqrt(np.einsum("bni,bni->bn", s, s)), 1e-12)  # the half vector's cosine
     excess = np.where(M, mean - np.where(M, mean, np.inf).min(axis=1, keepdims=True), -np.inf)
@@ -351,8 +390,8 @@ def initial_guesses(tables, par: Parametrization):
         bounds = {p.name: (p.lower, p.upper) for p in par.family.params}
         # conductor_guess checks the table itself; curve_readable only spares a batch its loop
         for b in (range(B) if B == 1 else np.flatnonzero(curve_readable(WO, WI, V, M))):
-            g = conductor_guess(WO[b][M[b]], WI[b][M[b]], V[b][M[b]], alpha[b], _CONDUCTOR_DISTRIBUTION[par.family.name],
-                                bounds["eta"], bounds["k"])
+            g = conductor_guess(WO[b], WI[b], V[b], alpha[b], _CONDUCTOR_DISTRIBUTION[par.family.name],
+                                bounds["eta"], bounds["k"], valid=M[b])
             if g is not None:
                 guess["alpha"][b], guess["eta"][b], guess["k"][b] = g
     # Every guess strictly inside its bounds (the bijection saturates at a bound).
@@ -470,7 +509,7 @@ def fit(table, model="plastic", method="lm", loss="l2", robust=None, robust_scal
     Parametrization(model, table.n_channels, fixed, tied).check_theta("fit: init", {} if init is None else init)
     C = table.n_channels
     fixed_items = tuple(sorted((k, tuple(np.atleast_1d(np.asarray(v, float)).tolist())) for k, v in (fixed or {}).items()))
-    par, run, gram, objective = _solver(model, C, fixed_items, tuple(tied), method, loss, robust, float(robust_scale),
+    par, _, run_full, objective = _solver(model, C, fixed_items, tuple(tied), method, loss, robust, float(robust_scale),
                                        int(max_steps), float(rtol), float(atol), device_count() == 1)
     n_res = int(np.count_nonzero(table.effective_weight()))
     if n_res <= par.size:
@@ -480,16 +519,16 @@ def fit(table, model="plastic", method="lm", loss="l2", robust=None, robust_scal
     n_rows = arrays[2].size
     rows = _split_rows(arrays)
     z0s = fit_starts(table, par, starts, seed, objective, rows, init)
-    z, obj, steps, ok = run(z0s, rows)
+    # the best start's residuals and J^T J come with the solution (Gauss-Newton covariance below)
+    z, obj, steps, ok, best, r_best, A = run_full(z0s, rows)
     obj = np.asarray(obj)
     good = np.isfinite(obj) & np.all(np.isfinite(np.asarray(z)), axis=1)
     if not good.any():
         raise FitError("fit: every start ended with non-finite parameters or objective")
-    best = int(np.argmin(np.where(good, obj, np.inf)))
+    best = int(best)
     zb = z[best]
     # Uncertainty: Gauss-Newton covariance in the natural parameters (chain rule through the
     # element-wise transform), scaled by the residual variance unless the table carries sigma.
-    r_best, A = gram(zb, _split_rows(arrays))
     r_best = np.asarray(r_best)[:n_rows]
     dtheta = np.asarray(jax.jacfwd(par.theta_vector)(zb)).diagonal()
     inv_d = 1 / np.where(dtheta != 0, dtheta, np.inf)

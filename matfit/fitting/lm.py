@@ -40,8 +40,9 @@ Steps (Nielsen 1999; Madsen, Nielsen & Tingleff 2004, Alg. 3.16, with Marquardt'
     :math:`\mu \leftarrow \mu\nu`, :math:`\nu \leftarrow 2\nu`. Every iteration is one trial step
     and, when it was accepted, the Jacobian at the point it reached (one flat loop, fast under
     ``vmap``). No coordinate of ``z`` moves by more than ``max_step`` (default 3) in one step
-    (the step is shortened, its direction kept, and the gain ratio uses the general predicted
-    decrease :math:`-g^T\delta - \tfrac12\delta^TJ^TJ\delta`): a sigmoid-mapped parameter
+    (a coordinate that would go further is held at ``max_step`` and the others are solved again
+    given it, :func:`_box_step`; the gain ratio uses the general predicted decrease
+    :math:`-g^T\delta - \tfrac12\delta^TJ^TJ\delta`): a sigmoid-mapped parameter
     whose Gauss-Newton step would throw it deep into saturation, where its derivative vanishes
     for good, gets there only if the objective keeps agreeing (on a full MERL conductor table the
     unlimited first step set ``k`` to exactly 0 and ended 0.2 % above the minimum found with the cap).
@@ -79,7 +80,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["column_groups", "jacobian", "lm_fd", "normal_equations", "GRAM_BLOCK"]
+__all__ = ["column_groups", "jacobian", "lm_fd", "LMResult", "normal_equations", "GRAM_BLOCK"]
 
 #: Column block of the channel-split Gram reductions; channel-split residuals padded to a
 #: multiple of it take the blocked path (:func:`_gram`).
@@ -272,6 +273,33 @@ def _stacked(fn):
     return lambda z, args: jnp.stack(fn(z, args), axis=-1)
 
 
+def _box_step(B, g, cap, passes=3):
+    """The damped Gauss-Newton step ``B delta = -g`` with no coordinate beyond ``cap``.
+
+    A coordinate whose solution leaves the box ``|delta_j| <= cap`` is held on the box's face
+    (``sign * cap``) and the others are solved again given it (an active-set projection,
+    ``passes`` rounds; a coordinate once held stays held). Scaling the whole step down instead
+    (its direction kept) lets one saturated parameter, whose vanishing derivative asks for a
+    huge step, freeze all the others: on a full MERL nickel table that stopped the fit after one
+    step at 1e-5 above the minimum. Whatever is still outside the box after the passes is scaled
+    into it."""
+    eye = jnp.eye(B.shape[-1], dtype=B.dtype)
+    delta = jnp.linalg.solve(B, -g)
+    if not np.isfinite(cap):
+        return delta
+
+    def hold(_, d):
+        held = jnp.abs(d) >= cap * (1 - 1e-6)
+        face = jnp.where(held, jnp.clip(d, -cap, cap), 0)
+        # rows of held coordinates become delta_j = face_j; the free rows move B's held columns
+        # to the right-hand side
+        Bh = jnp.where(held[:, None], eye, jnp.where(held[None, :], 0, B))
+        return jnp.linalg.solve(Bh, jnp.where(held, face, -g - B @ face))
+
+    delta = jax.lax.fori_loop(0, passes, hold, delta)
+    return delta * jnp.minimum(1, cap / jnp.maximum(jnp.max(jnp.abs(delta)), jnp.finfo(B.dtype).tiny))
+
+
 class _State(NamedTuple):
     z: jax.Array
     F: jax.Array
@@ -286,6 +314,21 @@ class _State(NamedTuple):
     ok: jax.Array
     rejects: jax.Array
     D: jax.Array
+
+
+class LMResult(NamedTuple):
+    """What :func:`lm_fd` returns: the solution ``z``, ``F = 0.5 |r|^2`` there, the number of
+    accepted ``steps``, whether a stopping test (not ``max_steps``) ended the loop
+    (``converged``), ``A = J^T J`` at ``z`` (for covariances), the number of model ``evals`` and
+    the residuals ``r`` at ``z`` (in ``fn``'s layout)."""
+
+    z: jax.Array
+    F: jax.Array
+    steps: jax.Array
+    converged: jax.Array
+    A: jax.Array
+    evals: jax.Array
+    r: object
 
 
 def lm_fd(fn, z0, args, seeds, owner, max_steps=100, rtol=1e-8, atol=1e-10, central=None, max_reject=12,
@@ -306,9 +349,18 @@ def lm_fd(fn, z0, args, seeds, owner, max_steps=100, rtol=1e-8, atol=1e-10, cent
 
     Returns
     -------
-    (z, F, steps, converged, A, evals) : the solution, ``0.5 |r|^2`` there, the number of
-    accepted steps, whether a stopping test (not ``max_steps``) ended the loop, ``J^T J`` at the
-    solution (for covariances) and the number of model evaluations.
+    LMResult
+        ``(z, F, steps, converged, A, evals, r)``.
+
+    Examples
+    --------
+    >>> import numpy as np, jax.numpy as jnp
+    >>> from matfit.fitting.lm import lm_fd
+    >>> x = jnp.linspace(0.0, 2.0, 50)
+    >>> fn = lambda z, x: (z[0] * jnp.exp(-z[1] * x) - 2.0 * jnp.exp(-1.5 * x))[:, None]
+    >>> res = lm_fd(fn, jnp.array([1.0, 1.0]), x, np.eye(2), np.ones((1, 2)))
+    >>> np.round(np.asarray(res.z), 6).tolist(), bool(res.converged)
+    ([2.0, 1.5], True)
     """
     z0 = jnp.asarray(z0)
     dt = z0.dtype
@@ -332,11 +384,7 @@ def lm_fd(fn, z0, args, seeds, owner, max_steps=100, rtol=1e-8, atol=1e-10, cent
         return (~s.done) & (s.steps < max_steps) & (s.evals < (4 * max_steps + 1) * (1 + per_jac))
 
     def body(s):
-        D = s.D
-        delta = jnp.linalg.solve(s.A + s.mu * D * eye, -s.g)
-        # At most max_step in any coordinate of z (the direction kept): a sigmoid-mapped
-        # parameter must not jump into saturation, where its derivative vanishes for good.
-        delta = delta * jnp.minimum(1, max_step / jnp.maximum(jnp.max(jnp.abs(delta)), jnp.finfo(dt).tiny))
+        delta = _box_step(s.A + s.mu * s.D * eye, s.g, max_step)
         r_new = fn(s.z + delta, args)
         F_new = _half_sq(r_new)
         pred = -jnp.dot(s.g, delta) - 0.5 * jnp.dot(delta, s.A @ delta)
@@ -368,4 +416,4 @@ def lm_fd(fn, z0, args, seeds, owner, max_steps=100, rtol=1e-8, atol=1e-10, cent
     small_g0 = jnp.max(jnp.abs(g0)) <= atol
     s = s._replace(done=small_g0, ok=small_g0)
     s = jax.lax.while_loop(cond, body, s)
-    return s.z, s.F, s.steps, s.ok, s.A, s.evals
+    return LMResult(s.z, s.F, s.steps, s.ok, s.A, s.evals, s.r)
