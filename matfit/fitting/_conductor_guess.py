@@ -71,6 +71,20 @@ def _lobe(wo, wi, h, alpha, distribution):
     return d.D(h) * d.G2(wo, wi, h)
 
 
+@functools.partial(jax.jit, static_argnums=6)
+def _width_scores(wo, wi, h, alphas, mean, bins, distribution):
+    """Mean squared within-bin deviation of ``log(f / m)`` per candidate width (rows of
+    ``alphas`` (K, 1)), ``m`` the microfacet factor: small where ``f / m`` is a function of
+    ``theta_d`` alone. Bins are the ``_N_BINS`` theta_d bins (empty ones add nothing)."""
+    m = _lobe(wo, wi, h, alphas, distribution) / (4 * wo[:, 2] * wi[:, 2])
+    ok = m > 0
+    lr = jnp.where(ok, jnp.log(mean / jnp.where(ok, m, 1.0)), 0.0)
+    n = jnp.maximum(jax.ops.segment_sum(ok.T.astype(lr.dtype), bins, _N_BINS), 1)  # (bins, K)
+    s = jax.ops.segment_sum((lr * ok).T, bins, _N_BINS)
+    dev = lr - (s / n)[bins].T
+    return jnp.sum(ok * dev**2, axis=1) / jnp.maximum(ok.sum(axis=1), 1)
+
+
 def _microfacet_factor(wo, wi, h, alpha, distribution):
     """``D G2`` of ``alpha`` (scalar or (K, 1)) on the rows, over ``4 cos_o cos_i``: one compiled
     call for the whole grid of widths."""
@@ -125,21 +139,12 @@ def conductor_guess(wo, wi, values, alpha0, distribution="ggx", eta_range=(0.05,
     keep, h, theta_d, bins = _theta_d_bins(wo, wi, v, np.ones(len(wo), bool))
     wo, wi, v, h, theta_d = wo[keep], wi[keep], v[keep], h[keep], theta_d[keep]
     mean = v.mean(axis=1)
-    uniq, inv, counts = np.unique(bins[keep], return_inverse=True, return_counts=True)
+    _, inv, counts = np.unique(bins[keep], return_inverse=True, return_counts=True)
     if np.count_nonzero(counts >= _MIN_ROWS_PER_BIN) < _MIN_BINS:
         return None  # too sparse to read a Fresnel curve (e.g. a 32-row texel): keep the simple guess
 
-    def spread(m):
-        """Mean squared within-bin deviation of log(f / m), per candidate alpha (rows of m)."""
-        ok = m > 0
-        lr = np.where(ok, np.log(mean / np.where(ok, m, 1.0)), 0.0)
-        n = np.maximum(np.stack([np.bincount(inv, o, len(uniq)) for o in ok.astype(float)]), 1)
-        s = np.stack([np.bincount(inv, x, len(uniq)) for x in lr * ok])
-        dev = lr - np.take_along_axis(s / n, np.broadcast_to(inv, lr.shape), axis=1)
-        return np.sum(ok * dev**2, axis=1) / np.maximum(ok.sum(axis=1), 1)
-
     alphas = np.clip(alpha0 * np.geomspace(0.4, 2.5, 31), 0.005, 1.4)
-    scores = spread(_microfacet_factor(wo, wi, h, alphas[:, None], distribution))
+    scores = np.asarray(_width_scores(wo, wi, h, jnp.asarray(alphas[:, None]), mean, bins[keep], distribution))
     j = int(np.argmin(scores))
     # one parabolic refinement step in log(alpha)
     alpha = alphas[j]
@@ -151,17 +156,19 @@ def conductor_guess(wo, wi, values, alpha0, distribution="ggx", eta_range=(0.05,
             alpha = float(np.exp(np.log(alphas[j]) + step * (np.log(alphas[j + 1]) - np.log(alphas[j]))))
     m = _microfacet_factor(wo, wi, h, alpha, distribution)
     ratio = v / np.maximum(m, 1e-300)[:, None]
-    curve = np.stack([np.array([np.median(ratio[inv == b, c]) for b in range(len(uniq))]) for c in range(v.shape[1])], 1)
-    cos_b = np.cos(np.radians(np.array([theta_d[inv == b].mean() for b in range(len(uniq))])))
+    order = np.argsort(inv, kind="stable")  # rows grouped by bin, one slice per bin
+    ends = np.cumsum(counts)
+    curve = np.stack([np.median(ratio[order[e - c:e]], axis=0) for e, c in zip(ends, counts)])
+    cos_b = np.cos(np.radians(np.bincount(inv, theta_d) / counts))
     eta_grid = np.geomspace(max(eta_range[0], 1e-3) * 1.05, eta_range[1] / 1.05, 72)
     k_grid = np.linspace(k_range[0], k_range[1], 97)[:-1] + 0.5 * (k_range[1] - k_range[0]) / 96
     E, K = np.meshgrid(eta_grid, k_grid, indexing="ij")
     F = np.asarray(fresnel_conductor(jnp.asarray(cos_b)[:, None], jnp.asarray(E.ravel()), jnp.asarray(K.ravel())))
-    F = np.maximum(F, 1e-12)  # (bins, grid)
+    logF = np.log(np.maximum(F, 1e-12))  # (bins, grid)
     eta, k = [], []
     for c in range(v.shape[1]):
         y = np.maximum(curve[:, c], 1e-12)
-        err = np.sum(counts[:, None] * (np.log(F) - np.log(y)[:, None]) ** 2, axis=0)
+        err = np.sum(counts[:, None] * (logF - np.log(y)[:, None]) ** 2, axis=0)
         i = int(np.argmin(err))
         eta.append(E.ravel()[i])
         k.append(K.ravel()[i])

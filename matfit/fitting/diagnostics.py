@@ -115,8 +115,8 @@ def diagnose(*, labels, values, stderr, lower, upper, residuals, converged, step
         if a or b:
             out.append(f"at a bound: {lab} = {v:.6g} is at its {'lower' if a else 'upper'} bound "
                        f"{lo if a else hi:g}; the best fit lies at or outside the family's range")
-    r = np.asarray(residuals, float)
-    r = r[r != 0]
+    r = np.asarray(residuals)
+    r = r[r != 0].astype(np.result_type(r.dtype, np.float32), copy=False)  # float32 stays float32 (medians of millions)
     if r.size >= 8:
         dev = np.abs(r - np.median(r))
         mad = 1.4826 * np.median(dev)
@@ -128,7 +128,7 @@ def diagnose(*, labels, values, stderr, lower, upper, residuals, converged, step
                 out.append(f"outliers: {n_out} of {r.size} residuals are more than {OUTLIER_Z:g} robust standard "
                            f"deviations from the fit (largest {z.max():.3g}); use robust='huber' or 'cauchy', or mask them")
     if known_sigma and dof > 0:
-        chi2 = float(np.sum(np.asarray(residuals, float) ** 2)) / dof
+        chi2 = float(np.sum(np.square(r, dtype=float))) / dof
         if chi2 > CHI2_MAX:
             out.append(f"poor fit: reduced chi-square {chi2:.4g} > {CHI2_MAX:g} with the table's own sigma: the model "
                        "does not explain the data (wrong family, outliers, or a local optimum)")

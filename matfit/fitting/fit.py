@@ -23,7 +23,7 @@ from ..parallel import device_count, shard_batch
 from ..table import Table
 from ._conductor_guess import conductor_guess, curve_readable
 from .diagnostics import diagnose
-from .lm import GRAM_BLOCK, _wide, column_groups, lm_fd, normal_equations
+from .lm import GRAM_BLOCK, _wide, column_groups, lm_fd
 from .losses import check_loss, prepare_targets, residuals_from_targets
 from .params import Parametrization, check_solver_options
 
@@ -180,11 +180,11 @@ def _by_channel(fn):
     return lambda z, arrays: fn(z, arrays).reshape(arrays[2].shape)
 
 
-def _solve_one(fn, method, z0, arrays, max_steps, rtol, atol, groups=None):
+def _solve_one(fn, method, z0, arrays, max_steps, rtol, atol, groups=None, wide=False):
     import optimistix as optx
 
     if method == "lm_fd":
-        res = lm_fd(fn, z0, arrays, *groups, max_steps=max_steps, rtol=rtol, atol=atol)
+        res = lm_fd(fn, z0, arrays, *groups, max_steps=max_steps, rtol=rtol, atol=atol, wide=wide)
         return res.z, res.steps, res.converged, res
 
     def obj(z, args):
@@ -208,7 +208,7 @@ def _solve_one(fn, method, z0, arrays, max_steps, rtol, atol, groups=None):
 
 
 #: Rows of the subsample a large table's ``lm_fd`` fit is first solved on (see :func:`_solver`).
-COARSE_ROWS = 65536
+COARSE_ROWS = 32768
 
 
 def _coarse_rows(arrays):
@@ -233,7 +233,7 @@ def _solver(family, channels, fixed_items, tied, method, loss, robust, scale, ma
     family's model supports them; single fits only (batched fits vmap the ``(N, C)`` form).
     ``lm_fd`` on a table of at least ``4 * COARSE_ROWS`` rows (a full MERL table) first solves
     on a fixed random subset of :data:`COARSE_ROWS` rows and starts the full solve where that one
-    ended: the subsample's iterations cost 1/16 of the full table's, and from there the full
+    ended: the subsample's iterations cost ~1/30 of a MERL table's, and from there the full
     solve takes a few (on a MERL conductor table 1-5 instead of 15-25), to the same stopping
     tests (``docs/performance.md``)."""
     par = Parametrization(family, channels, dict(fixed_items), tied)
@@ -246,7 +246,7 @@ def _solver(family, channels, fixed_items, tied, method, loss, robust, scale, ma
     groups = column_groups(par)
     objective = _objective_fn(prepare, fn)
 
-    def solve_all(z0s, arrays):
+    def solve_all(z0s, arrays, wide=False):
         prepared = solve_prepare(arrays)  # once, outside the solver's loop
         sub = _coarse_rows(arrays) if method == "lm_fd" else None
         coarse = None if sub is None else solve_prepare(sub)
@@ -254,7 +254,7 @@ def _solver(family, channels, fixed_items, tied, method, loss, robust, scale, ma
         def solve(z0):
             if coarse is not None:
                 z0 = lm_fd(solve_fn, z0, coarse, *groups, max_steps=max_steps, rtol=rtol, atol=atol).z
-            return _solve_one(solve_fn, method, z0, prepared, max_steps, rtol, atol, groups)
+            return _solve_one(solve_fn, method, z0, prepared, max_steps, rtol, atol, groups, wide)
 
         if z0s.shape[0] == 1:  # one start: no vmap, which would batch the model's loops
             z, steps, ok, res = jax.tree_util.tree_map(lambda x: x[None], solve(z0s[0]))
@@ -267,7 +267,8 @@ def _solver(family, channels, fixed_items, tied, method, loss, robust, scale, ma
         return solve_all(z0s, arrays)[1:5]
 
     def run_full(z0s, arrays):
-        prepared, z, obj, steps, ok, res = solve_all(z0s, arrays)
+        # lm_fd sums its moments in float64 (x64 on) for the J^T J returned with the solution
+        prepared, z, obj, steps, ok, res = solve_all(z0s, arrays, wide=True)
         good = jnp.isfinite(obj) & jnp.all(jnp.isfinite(z), axis=1)
         best = jnp.argmin(jnp.where(good, obj, jnp.inf))
         zb = z[best]
@@ -276,8 +277,6 @@ def _solver(family, channels, fixed_items, tied, method, loss, robust, scale, ma
             J = _wide(jax.jacfwd(flat)(zb, prepared))  # float64 only when x64 is on (no truncation warning)
             return z, obj, steps, ok, best, flat(zb, prepared), J.T @ J
         r, A = jax.tree_util.tree_map(lambda x: x[best], (res.r, res.A))
-        if _wide(A).dtype != A.dtype:  # the solver's own Jacobian at zb, its moments summed wide
-            _, A, _, r = normal_equations(solve_fn, zb, prepared, *groups, central=True, r=r, wide=True)
         r = jnp.stack(r, axis=-1) if split else r
         return z, obj, steps, ok, best, r[:n].reshape(-1), A
 

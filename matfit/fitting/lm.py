@@ -282,7 +282,8 @@ def _box_step(B, g, cap, passes=3):
     (its direction kept) lets one saturated parameter, whose vanishing derivative asks for a
     huge step, freeze all the others: on a full MERL nickel table that stopped the fit after one
     step at 1e-5 above the minimum. Whatever is still outside the box after the passes is scaled
-    into it."""
+    into it. Should the damped model ``g.d + d.B.d / 2`` not fall along the result, the whole
+    step scaled into the box (which always descends) is taken instead."""
     eye = jnp.eye(B.shape[-1], dtype=B.dtype)
     delta = jnp.linalg.solve(B, -g)
     if not np.isfinite(cap):
@@ -296,8 +297,14 @@ def _box_step(B, g, cap, passes=3):
         Bh = jnp.where(held[:, None], eye, jnp.where(held[None, :], 0, B))
         return jnp.linalg.solve(Bh, jnp.where(held, face, -g - B @ face))
 
-    delta = jax.lax.fori_loop(0, passes, hold, delta)
-    return delta * jnp.minimum(1, cap / jnp.maximum(jnp.max(jnp.abs(delta)), jnp.finfo(B.dtype).tiny))
+    def into_box(d):
+        return d * jnp.minimum(1, cap / jnp.maximum(jnp.max(jnp.abs(d)), jnp.finfo(B.dtype).tiny))
+
+    held = into_box(jax.lax.fori_loop(0, passes, hold, delta))
+    # Holding coordinates can, with strongly coupled ones, give a step along which the damped
+    # model rises; the shortened step (direction kept) always descends: take it then.
+    descends = jnp.dot(g, held) + 0.5 * jnp.dot(held, B @ held) < 0
+    return jnp.where(descends, held, into_box(delta))
 
 
 class _State(NamedTuple):
@@ -332,7 +339,7 @@ class LMResult(NamedTuple):
 
 
 def lm_fd(fn, z0, args, seeds, owner, max_steps=100, rtol=1e-8, atol=1e-10, central=None, max_reject=12,
-          tau=1e-3, max_step=3.0):
+          tau=1e-3, max_step=3.0, wide=False):
     """Minimize ``0.5 |fn(z, args)|^2`` from ``z0`` (see the module docstring).
 
     Parameters
@@ -346,6 +353,8 @@ def lm_fd(fn, z0, args, seeds, owner, max_steps=100, rtol=1e-8, atol=1e-10, cent
     max_reject : consecutive rejected steps after which the objective counts as minimal.
     tau : initial damping, relative to the diagonal of ``J^T J``.
     max_step : largest change of any coordinate of ``z`` in one step (``np.inf``: no limit).
+    wide : sum the moments ``J^T J``, ``J^T r`` in float64 (when x64 is on) at every Jacobian, and
+        return ``A`` so: a float32 fit's ``A`` then serves covariances as a float64 one does.
 
     Returns
     -------
@@ -367,13 +376,13 @@ def lm_fd(fn, z0, args, seeds, owner, max_steps=100, rtol=1e-8, atol=1e-10, cent
     central = (dt == jnp.float32) if central is None else bool(central)
     G = len(seeds)
     per_jac = 2 * G if central else G
-    F0, A0, g0, r0 = normal_equations(fn, z0, args, seeds, owner, central)
+    F0, A0, g0, r0 = normal_equations(fn, z0, args, seeds, owner, central, wide=wide)
     mu0 = jnp.asarray(tau, dt)  # relative to diag(J^T J) (Marquardt's scaling)
     s = _State(z0, F0, A0, g0, r0, mu0, jnp.asarray(2.0, dt), jnp.asarray(0), jnp.asarray(1 + per_jac),
                jnp.asarray(False), jnp.asarray(False), jnp.asarray(0),
                jnp.maximum(jnp.diag(A0), jnp.finfo(dt).eps * jnp.max(jnp.diag(A0)) + jnp.finfo(dt).tiny))
     p = z0.shape[0]
-    eye = jnp.eye(p, dtype=dt)
+    eye = jnp.eye(p, dtype=A0.dtype)
     f_tol = max(rtol, 4 * float(jnp.finfo(dt).eps))
 
     # One flat loop: every iteration is one trial step and the Jacobian at the (possibly
@@ -384,10 +393,10 @@ def lm_fd(fn, z0, args, seeds, owner, max_steps=100, rtol=1e-8, atol=1e-10, cent
         return (~s.done) & (s.steps < max_steps) & (s.evals < (4 * max_steps + 1) * (1 + per_jac))
 
     def body(s):
-        delta = _box_step(s.A + s.mu * s.D * eye, s.g, max_step)
+        delta = _box_step(s.A + s.mu * s.D * eye, s.g, max_step).astype(dt)
         r_new = fn(s.z + delta, args)
         F_new = _half_sq(r_new)
-        pred = -jnp.dot(s.g, delta) - 0.5 * jnp.dot(delta, s.A @ delta)
+        pred = (-jnp.dot(s.g, delta) - 0.5 * jnp.dot(delta, s.A @ delta)).astype(dt)
         rho = (s.F - F_new) / jnp.where(pred > 0, pred, jnp.inf)
         acc = jnp.isfinite(F_new) & (F_new < s.F) & (rho > 0) & jnp.all(jnp.isfinite(delta))
         mu = jnp.where(acc, s.mu * jnp.maximum(1 / 3, 1 - (2 * rho - 1) ** 3), s.mu * s.nu)
@@ -395,7 +404,7 @@ def lm_fd(fn, z0, args, seeds, owner, max_steps=100, rtol=1e-8, atol=1e-10, cent
         z_new = jnp.where(acc, s.z + delta, s.z)
         # A rejected step leaves z, and so the Jacobian, unchanged (under vmap both branches run).
         F_c, A, g, r = jax.lax.cond(
-            acc, lambda: normal_equations(fn, z_new, args, seeds, owner, central, r=r_new, F=F_new),
+            acc, lambda: normal_equations(fn, z_new, args, seeds, owner, central, r=r_new, F=F_new, wide=wide),
             lambda: (s.F, s.A, s.g, s.r))
         # Either test ends the loop after a step the quadratic model predicted well (scipy's
         # ftol/xtol rule); the objective's test cannot ask for less than the dtype resolves.
