@@ -35,7 +35,17 @@ from .errors import MatfitError
 #: Name of the mesh axis that the batch is split along.
 BATCH_AXIS = "batch"
 
-__all__ = ["BATCH_AXIS", "use_host_devices", "batch_mesh", "batch_sharding", "shard_batch", "device_count"]
+__all__ = ["BATCH_AXIS", "use_host_devices", "use_cores", "batch_mesh", "batch_sharding", "shard_batch",
+           "device_count"]
+
+
+def _backend_started():
+    try:  # the public API has no "is the backend started" query
+        from jax._src import xla_bridge
+
+        return xla_bridge.backends_are_initialized()
+    except (ImportError, AttributeError):
+        return None
 
 
 def use_host_devices(n: int | None = None) -> int:
@@ -59,11 +69,8 @@ def use_host_devices(n: int | None = None) -> int:
     n = int(n if n is not None else (os.cpu_count() or 1))
     if n < 1:
         raise MatfitError(f"use_host_devices: n must be >= 1, got {n}")
-    try:  # the public API has no "is the backend started" query
-        from jax._src import xla_bridge
-
-        started = xla_bridge.backends_are_initialized()
-    except (ImportError, AttributeError):  # another JAX version: ask the config, which refuses once started
+    started = _backend_started()
+    if started is None:  # another JAX version: ask the config, which refuses once started
         try:
             jax.config.update("jax_num_cpu_devices", n)
             return n
@@ -80,6 +87,43 @@ def use_host_devices(n: int | None = None) -> int:
         return n
     jax.config.update("jax_num_cpu_devices", n)
     return n
+
+
+def use_cores(n: int) -> int:
+    """Limit this process to ``n`` of the CPU cores it may use (its CPU affinity, Linux).
+
+    XLA sizes its CPU thread pool from the cores a process may use when JAX starts its backend,
+    so this must run before that (before the first array is created or ``jax.devices()`` is
+    called; importing jax or matfit first is fine); the shell's ``taskset -c 0 python ...`` does
+    the same from outside. Many small calls gain from one core: a 16-walker log-posterior of a
+    2048-row table spends more on handing each of its ~10 loops to a second thread than the
+    thread gives back, and an emcee step with one core allowed is ~1.5x faster than with two
+    (``benchmarks/bench_emcee.py --cores 1``, ``docs/performance.md``). Large tables lose: a full
+    MERL fit's loops run at half speed on one core.
+
+    Returns the number of cores the process may now use. Raises
+    :class:`matfit.errors.MatfitError` when JAX's backend has already started or the platform
+    cannot set an affinity.
+
+    Examples
+    --------
+    >>> from matfit.parallel import use_cores
+    >>> use_cores(1)  # doctest: +SKIP
+    1
+    """
+    n = int(n)
+    if n < 1:
+        raise MatfitError(f"use_cores: n must be >= 1, got {n}")
+    if not hasattr(os, "sched_setaffinity"):
+        raise MatfitError("use_cores: this platform cannot set a CPU affinity (Linux only); start Python with one "
+                          "core allowed instead (e.g. `start /affinity 1` on Windows)")
+    if _backend_started() is not False:
+        raise MatfitError(f"use_cores({n}): the JAX backend already started (or this JAX version cannot tell): its "
+                          "CPU thread pool is sized; call use_cores before the first JAX computation, or start "
+                          f"Python under `taskset -c 0-{n - 1}`")
+    allowed = sorted(os.sched_getaffinity(0))
+    os.sched_setaffinity(0, allowed[:n])
+    return len(os.sched_getaffinity(0))
 
 
 def _devices(devices=None):

@@ -17,7 +17,7 @@ from matfit.errors import MatfitError, ParameterError
 from matfit.fast import channel_model, eval_soa, soa_pairs, supports_soa
 from matfit.microfacet import make_distribution
 from matfit.models import (Blend, CoatedConductor, Lambert, Plastic, RoughConductor, RoughDielectric)
-from matfit.parallel import shard_batch, use_host_devices
+from matfit.parallel import shard_batch, use_cores, use_host_devices
 
 ETA = [0.143, 0.375, 1.442]
 K = [3.983, 2.386, 1.603]
@@ -170,6 +170,29 @@ def test_use_host_devices_refuses_after_backend_start():
     assert use_host_devices(have) == have
     with pytest.raises(MatfitError, match="already started"):
         use_host_devices(have + 1)
+
+
+def test_use_cores_refuses_after_backend_start():
+    jax.devices()
+    with pytest.raises(MatfitError, match="already started"):
+        use_cores(1)
+    with pytest.raises(MatfitError, match="n must be >= 1"):
+        use_cores(0)
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="CPU affinity is Linux-only")
+def test_use_cores_limits_the_process_before_jax_starts():
+    code = textwrap.dedent(
+        """
+        import os, jax, jax.numpy as jnp
+        from matfit.parallel import use_cores
+        assert use_cores(1) == 1
+        assert len(os.sched_getaffinity(0)) == 1
+        assert float(jnp.arange(4.0).sum()) == 6.0
+        print("ok")
+        """)
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0 and r.stdout.strip().endswith("ok"), r.stderr
 
 
 def test_two_host_devices_split_the_batch_and_agree():

@@ -205,8 +205,10 @@ class LogProb:
         X = np.atleast_2d(X)
         if X.shape[-1] != self.ndim:
             raise ParameterError(f"log-probability: expected points with {self.ndim} coordinates, got shape {X.shape}")
-        out = np.empty(len(X))
         b = self.block
+        if len(X) == b and not single:  # emcee's half-ensemble: one call, no copies (the common case)
+            return np.asarray(self._batched(X.astype(self.dtype, copy=False), self.args), dtype=np.float64)
+        out = np.empty(len(X))
         for i in range(0, len(X), b):
             part = X[i:i + b]
             k = len(part)
