@@ -79,3 +79,25 @@ def test_fit_batch_lm_fd_equals_single_fits(x64):
         r = fit(t, model="conductor", method="lm_fd", starts=1, max_steps=64)
         assert abs(obj[i] - r.objective) <= 1e-8 * r.objective + 1e-14
         np.testing.assert_allclose(values[i], r.values, rtol=1e-5, atol=1e-8)
+
+
+def test_large_table_subset_start_reaches_the_plain_minimum(x64, monkeypatch):
+    """A table of >= 4 * COARSE_ROWS rows is solved on a random subset first, then in full (with
+    the line-minimum extrapolation): it must end at the minimum the plain full-table solve finds,
+    with the truth recovered."""
+    import importlib
+
+    fm = importlib.import_module("matfit.fitting.fit")  # the module (the package exports the function)
+
+    t = _table(n=4 * 8192 + 1000, seed=3, noise=0.01)
+    monkeypatch.setattr(fm, "COARSE_ROWS", 8192)
+    fm._solver.cache_clear()
+    coarse = fit(t, model="conductor", method="lm_fd", loss="l2", starts=1)
+    monkeypatch.setattr(fm, "COARSE_ROWS", 10**9)  # no subset: the plain solve
+    fm._solver.cache_clear()
+    plain = fit(t, model="conductor", method="lm_fd", loss="l2", starts=1)
+    fm._solver.cache_clear()
+    assert coarse.converged and plain.converged
+    assert abs(coarse.objective - plain.objective) <= 1e-7 * plain.objective
+    np.testing.assert_allclose(coarse.values, plain.values, rtol=1e-3, atol=1e-4)
+    assert abs(float(coarse.params["alpha"]) - 0.3) < 0.01

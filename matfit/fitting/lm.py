@@ -351,6 +351,30 @@ class _State(NamedTuple):
     D: jax.Array
 
 
+def _extrapolated(fn, args, s, delta, z_new, r_new, F_new, try_it, cap):
+    """After an accepted step whose decrease beat the model's prediction by more than 25 %, try
+    the minimum of the parabola through ``F(z)``, the slope ``g . delta`` and ``F(z + delta)``
+    along the same direction (``alpha`` clipped to [1, 4] and to the step cap) and keep it when
+    it is lower. The Gauss-Newton model of a large-residual problem can overestimate the
+    curvature: on a full MERL plastic table every step went half the way (gain ratio 1.49, steps
+    halving) and the fit took 10 full-table iterations. Returns ``(z, r, F)``; one evaluation,
+    only where tried (``lax.cond``)."""
+    slope = jnp.dot(s.g, delta).astype(F_new.dtype)
+    curv = F_new - s.F - slope
+    alpha = jnp.where(curv > 0, -slope / (2 * jnp.where(curv > 0, curv, 1)), 1)
+    top = cap / jnp.maximum(jnp.max(jnp.abs(delta)), jnp.finfo(delta.dtype).tiny)
+    alpha = jnp.clip(alpha, 1, jnp.minimum(4, top)).astype(delta.dtype)
+
+    def tried():
+        z2 = s.z + alpha * delta
+        r2 = fn(z2, args)
+        F2 = _half_sq(r2)
+        better = jnp.isfinite(F2) & (F2 < F_new)
+        return jax.tree_util.tree_map(lambda a, b: jnp.where(better, a, b), (z2, r2, F2), (z_new, r_new, F_new))
+
+    return jax.lax.cond(try_it & (alpha > 1), tried, lambda: (z_new, r_new, F_new))
+
+
 class LMResult(NamedTuple):
     """What :func:`lm_fd` returns: the solution ``z``, ``F = 0.5 |r|^2`` there, the number of
     accepted ``steps``, whether a stopping test (not ``max_steps``) ended the loop
@@ -367,7 +391,7 @@ class LMResult(NamedTuple):
 
 
 def lm_fd(fn, z0, args, seeds, owner, max_steps=100, rtol=1e-8, atol=1e-10, central=None, max_reject=12,
-          tau=1e-3, max_step=3.0, wide=False):
+          tau=1e-3, max_step=3.0, wide=False, extrapolate=False):
     """Minimize ``0.5 |fn(z, args)|^2`` from ``z0`` (see the module docstring).
 
     Parameters
@@ -383,6 +407,9 @@ def lm_fd(fn, z0, args, seeds, owner, max_steps=100, rtol=1e-8, atol=1e-10, cent
     max_step : largest change of any coordinate of ``z`` in one step (``np.inf``: no limit).
     wide : sum the moments ``J^T J``, ``J^T r`` in float64 (when x64 is on) at every Jacobian, and
         return ``A`` so: a float32 fit's ``A`` then serves covariances as a float64 one does.
+    extrapolate : after an accepted step that beat its predicted decrease by more than 25 %, try
+        the line minimum along it (:func:`_extrapolated`; one more evaluation there). For single
+        large fits; under ``vmap`` every member would pay the evaluation.
 
     Returns
     -------
@@ -430,6 +457,8 @@ def lm_fd(fn, z0, args, seeds, owner, max_steps=100, rtol=1e-8, atol=1e-10, cent
         mu = jnp.where(acc, s.mu * jnp.maximum(1 / 3, 1 - (2 * rho - 1) ** 3), s.mu * s.nu)
         nu = jnp.where(acc, 2.0, 2 * s.nu)
         z_new = jnp.where(acc, s.z + delta, s.z)
+        if extrapolate:
+            z_new, r_new, F_new = _extrapolated(fn, args, s, delta, z_new, r_new, F_new, acc & (rho > 1.25), max_step)
         # A rejected step leaves z, and so the Jacobian, unchanged (under vmap both branches run).
         F_c, A, g, r = jax.lax.cond(
             acc, lambda: normal_equations(fn, z_new, args, seeds, owner, central, r=r_new, F=F_new, wide=wide),
