@@ -46,6 +46,11 @@ Steps (Nielsen 1999; Madsen, Nielsen & Tingleff 2004, Alg. 3.16, with Marquardt'
     whose Gauss-Newton step would throw it deep into saturation, where its derivative vanishes
     for good, gets there only if the objective keeps agreeing (on a full MERL conductor table the
     unlimited first step set ``k`` to exactly 0 and ended 0.2 % above the minimum found with the cap).
+    With ``extrapolate=True`` (``fit`` sets it for the full solve of a large table) an accepted
+    step whose gain ratio exceeds 1.25 is followed by one evaluation at the minimum of the
+    parabola through :math:`F(z)`, :math:`g^T\delta` and :math:`F(z+\delta)` along the step
+    (factor in [1, 4]), kept when lower (:func:`_extrapolated`): a large-residual problem's
+    Gauss-Newton model can overestimate the curvature, and its steps then go part of the way.
 
 Stopping
     ``converged`` after an accepted step with gain ratio above 1/4 that lowered the objective by at
