@@ -66,9 +66,11 @@ def curve_readable(wo, wi, values, valid):
 
 
 @functools.partial(jax.jit, static_argnums=4)
-def _lobe(wo, wi, h, alpha, distribution):
+def _microfacet_factor(wo, wi, h, alpha, distribution):
+    """``m = D G2 / (4 cos_o cos_i)`` of ``alpha`` (scalar, or (K, 1) for a grid of widths) on
+    the rows: one compiled call for the whole grid."""
     d = make_distribution(distribution, alpha)
-    return d.D(h) * d.G2(wo, wi, h)
+    return d.D(h) * d.G2(wo, wi, h) / (4 * wo[:, 2] * wi[:, 2])
 
 
 @functools.partial(jax.jit, static_argnums=6)
@@ -76,20 +78,13 @@ def _width_scores(wo, wi, h, alphas, mean, bins, distribution):
     """Mean squared within-bin deviation of ``log(f / m)`` per candidate width (rows of
     ``alphas`` (K, 1)), ``m`` the microfacet factor: small where ``f / m`` is a function of
     ``theta_d`` alone. Bins are the ``_N_BINS`` theta_d bins (empty ones add nothing)."""
-    m = _lobe(wo, wi, h, alphas, distribution) / (4 * wo[:, 2] * wi[:, 2])
+    m = _microfacet_factor(wo, wi, h, alphas, distribution)
     ok = m > 0
     lr = jnp.where(ok, jnp.log(mean / jnp.where(ok, m, 1.0)), 0.0)
     n = jnp.maximum(jax.ops.segment_sum(ok.T.astype(lr.dtype), bins, _N_BINS), 1)  # (bins, K)
     s = jax.ops.segment_sum((lr * ok).T, bins, _N_BINS)
     dev = lr - (s / n)[bins].T
     return jnp.sum(ok * dev**2, axis=1) / jnp.maximum(ok.sum(axis=1), 1)
-
-
-def _microfacet_factor(wo, wi, h, alpha, distribution):
-    """``D G2`` of ``alpha`` (scalar or (K, 1)) on the rows, over ``4 cos_o cos_i``: one compiled
-    call for the whole grid of widths."""
-    m = _lobe(jnp.asarray(wo), jnp.asarray(wi), jnp.asarray(h), jnp.asarray(alpha, jnp.asarray(wo).dtype), distribution)
-    return np.asarray(m) / (4 * wo[:, 2] * wi[:, 2])
 
 
 def conductor_guess(wo, wi, values, alpha0, distribution="ggx", eta_range=(0.05, 8.0), k_range=(0.0, 12.0),
@@ -154,7 +149,7 @@ def conductor_guess(wo, wi, values, alpha0, distribution="ggx", eta_range=(0.05,
         if den > 0:
             step = 0.5 * (s0 - s2) / den
             alpha = float(np.exp(np.log(alphas[j]) + step * (np.log(alphas[j + 1]) - np.log(alphas[j]))))
-    m = _microfacet_factor(wo, wi, h, alpha, distribution)
+    m = np.asarray(_microfacet_factor(wo, wi, h, jnp.asarray(alpha, jnp.asarray(wo).dtype), distribution))
     ratio = v / np.maximum(m, 1e-300)[:, None]
     order = np.argsort(inv, kind="stable")  # rows grouped by bin, one slice per bin
     ends = np.cumsum(counts)
