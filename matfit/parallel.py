@@ -97,7 +97,7 @@ def use_cores(n: int) -> int:
     called; importing jax or matfit first is fine); the shell's ``taskset -c 0 python ...`` does
     the same from outside. Many small calls gain from one core: a 16-walker log-posterior of a
     2048-row table spends more on handing each of its ~10 loops to a second thread than the
-    thread gives back, and an emcee step with one core allowed is ~1.5x faster than with two
+    thread gives back, and an emcee step with one core allowed was 1.34x faster than with two
     (``benchmarks/bench_emcee.py --cores 1``, ``docs/performance.md``). Large tables lose: a full
     MERL fit's loops run at half speed on one core.
 

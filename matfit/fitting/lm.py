@@ -333,11 +333,11 @@ def _box_step(B, g, cap, passes=3):
     def into_box(d):
         return d * jnp.minimum(1, cap / jnp.maximum(jnp.max(jnp.abs(d)), jnp.finfo(B.dtype).tiny))
 
-    held = into_box(jax.lax.while_loop(outside, hold, (0, delta))[1])
+    boxed = into_box(jax.lax.while_loop(outside, hold, (0, delta))[1])
     # Holding coordinates can, with strongly coupled ones, give a step along which the damped
     # model rises; the shortened step (direction kept) always descends: take it then.
-    descends = jnp.dot(g, held) + 0.5 * jnp.dot(held, B @ held) < 0
-    return jnp.where(descends, held, into_box(delta))
+    descends = jnp.dot(g, boxed) + 0.5 * jnp.dot(boxed, B @ boxed) < 0
+    return jnp.where(descends, boxed, into_box(delta))
 
 
 class _State(NamedTuple):
