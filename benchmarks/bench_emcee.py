@@ -9,14 +9,16 @@ sigma (2 % noise), Gaussian likelihood, uniform priors, sampled in the unconstra
   call; matfit evaluates them in one jitted, vmapped call, numpy one point after another.
 * emcee steps per second and effective samples per second: ``EnsembleSampler`` runs of
   ``--steps`` steps (matfit, ``vectorize=True``) and ``--numpy-steps`` (numpy) from the same
-  start; effective samples = walkers * steps / max(tau), with tau estimated on the matfit chain
+  start, interleaved in ``--rounds`` rounds (each round continues every sampler for its share of
+  the steps): the speedup is reported over the whole runs and per round (median, min, max), so
+  that the machine's load changing between contenders shows as spread; effective samples = walkers * steps / max(tau), with tau estimated on the matfit chain
   (the same sampler and target: the autocorrelation time does not depend on who evaluates).
 
 ``--cores 1`` limits the process to one core before JAX starts (``matfit.parallel.use_cores``):
 XLA's thread pool then has one thread, and these small calls (16 points x 2048 rows) run faster
 without handing their loops to a second one. Both contenders run in that same process.
 
-Usage: python benchmarks/bench_emcee.py [--steps 3000] [--numpy-steps 200] [--quick] [--cores 1]
+Usage: python benchmarks/bench_emcee.py [--steps 3000] [--numpy-steps 200] [--rounds 5] [--quick] [--cores 1]
 Writes benchmarks/results/emcee.json.
 """
 
@@ -75,6 +77,8 @@ def main(argv=None):
     ap.add_argument("--steps", type=int, default=3000)
     ap.add_argument("--numpy-steps", type=int, default=200)
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--rounds", type=int, default=5,
+                    help="the emcee runs are interleaved in this many rounds (a speedup per round)")
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--cores", type=int, default=None,
                     help="limit the process to this many cores before JAX starts (matfit.parallel.use_cores)")
@@ -83,7 +87,7 @@ def main(argv=None):
     if ns.cores:
         use_cores(ns.cores)
     if ns.quick:
-        ns.steps, ns.numpy_steps, ns.repeats = 600, 40, 3
+        ns.steps, ns.numpy_steps, ns.repeats, ns.rounds = 600, 40, 3, 2
     t = table()
     par = Parametrization("conductor", 3)
     z_true = np.asarray(par.z_from_theta(TRUE))
@@ -114,30 +118,48 @@ def main(argv=None):
     print_table(rows, [("evaluator", "log-probability", "s"), ("dtype", "dtype", "s"), ("evals_per_s", "evals/s", ".0f"),
                        ("spread", "spread", ".2f"), ("compile_s", "compile s", ".1f"),
                        ("max_abs_diff_vs_numpy", "|lp - lp_numpy|", ".1e"), ("speedup_evals", "speedup", ".0f")])
-    # ---- emcee runs
+    # ---- emcee runs, interleaved: each round runs every sampler for its share of the steps, so
+    # that a change in the machine's load between contenders shows as spread, not as a ratio
+    contenders = (("matfit float64", lps["float64"], ns.steps, True),
+                  ("matfit float32", lps["float32"], ns.steps, True),
+                  ("numpy", np_lp, ns.numpy_steps, False))
     runs = []
-    for name, fn, steps, vec in (("matfit float64", lps["float64"], ns.steps, True),
-                                 ("matfit float32", lps["float32"], ns.steps, True),
-                                 ("numpy", np_lp, ns.numpy_steps, False)):
+    for name, fn, steps, vec in contenders:
         sampler = emcee.EnsembleSampler(ns.walkers, par.size, fn, vectorize=vec)
-        state = emcee.State(p0, random_state=np.random.RandomState(0).get_state())
-        t0 = time.perf_counter()
-        sampler.run_mcmc(state, steps, progress=False)
-        wall = time.perf_counter() - t0
-        runs.append({"evaluator": name, "steps": steps, "wall_s": wall, "steps_per_s": steps / wall,
-                     "acceptance": float(np.mean(sampler.acceptance_fraction)), "sampler": sampler})
+        runs.append({"evaluator": name, "steps": 0, "wall_s": 0.0, "round_steps_per_s": [], "sampler": sampler,
+                     "state": emcee.State(p0, random_state=np.random.RandomState(0).get_state())})
+    for k in range(ns.rounds):
+        for r, (name, fn, steps, vec) in zip(runs, contenders):
+            n = steps // ns.rounds + (k < steps % ns.rounds)
+            t0 = time.perf_counter()
+            r["state"] = r["sampler"].run_mcmc(r["state"], n, progress=False)
+            wall = time.perf_counter() - t0
+            r["steps"] += n
+            r["wall_s"] += wall
+            r["round_steps_per_s"].append(n / wall)
+    for r in runs:
+        r["steps_per_s"] = r["steps"] / r["wall_s"]
+        r["acceptance"] = float(np.mean(r["sampler"].acceptance_fraction))
     tau = np.asarray(runs[0]["sampler"].get_autocorr_time(tol=0, discard=ns.steps // 4,
                                                            quiet=True))
     tau_max = float(np.max(tau))
+    base = runs[-1]
     for r in runs:
         r["tau_max"] = tau_max
         r["ess_per_s"] = ns.walkers * r["steps_per_s"] / tau_max
-        r["speedup_per_step"] = r["steps_per_s"] / runs[-1]["steps_per_s"]
+        r["speedup_per_step"] = r["steps_per_s"] / base["steps_per_s"]
+        ratios = [a / b for a, b in zip(r["round_steps_per_s"], base["round_steps_per_s"])]
+        r["speedup_rounds"] = ratios
+        r["speedup_median"] = float(np.median(ratios))
+        r["speedup_min"], r["speedup_max"] = float(np.min(ratios)), float(np.max(ratios))
         r.pop("sampler")
+        r.pop("state")
     print()
     print_table(runs, [("evaluator", "emcee with", "s"), ("steps", "steps", "d"), ("wall_s", "wall s", ".1f"),
                        ("steps_per_s", "steps/s", ".1f"), ("ess_per_s", "eff. samples/s", ".1f"),
-                       ("acceptance", "acceptance", ".2f"), ("speedup_per_step", "speedup", ".1f")])
+                       ("acceptance", "acceptance", ".2f"), ("speedup_per_step", "speedup", ".1f"),
+                       ("speedup_median", "median/round", ".1f"), ("speedup_min", "min", ".1f"),
+                       ("speedup_max", "max", ".1f")])
     print(f"tau (max over parameters) = {tau_max:.1f} steps, {ns.walkers} walkers")
     out = write_json("emcee", {"evaluations": rows, "runs": runs}, args=vars(ns),
                      extra={"rows": N_ROWS, "family": "conductor", "devices": len(jax.devices()),

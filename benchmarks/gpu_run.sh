@@ -45,11 +45,14 @@ if [ "$QUICK" = quick ]; then
   step eval 300 $PY benchmarks/bench_eval.py --n 20000 --repeat 2 --models conductor_ggx,plastic_rough \
     --mitsuba-variant "${MITSUBA_VARIANT:-llvm_ad_rgb}"
 else
-  step fit_merl 150 $PY benchmarks/bench_fit_merl.py --shared "$SHARED" --families conductor --repeats 3 \
+  # plastic last: new in this script, and the longest (its scipy run alone is ~1 min)
+  step fit_merl 120 $PY benchmarks/bench_fit_merl.py --shared "$SHARED" --families conductor --repeats 2 \
     --out "$OUT_DIR/fit_merl_conductor.json"
-  step batched 90 $PY benchmarks/bench_batched.py --scipy-texels 100 --repeats 3
-  step emcee 60 $PY benchmarks/bench_emcee.py --steps 2000 --numpy-steps 150 --repeats 3
-  step eval 170 $PY benchmarks/bench_eval.py --n 8000000 --numpy-n 1000000 --repeat 5 --mitsuba-variant cuda_ad_rgb \
-    --models lambert,conductor_ggx,conductor_ggx_aniso,conductor_beckmann,blend_lambert_ggx,plastic_smooth
+  step batched 75 $PY benchmarks/bench_batched.py --scipy-texels 100 --repeats 3
+  step emcee 50 $PY benchmarks/bench_emcee.py --steps 2000 --numpy-steps 150 --repeats 3 --rounds 3
+  step eval 120 $PY benchmarks/bench_eval.py --n 8000000 --numpy-n 1000000 --repeat 5 --mitsuba-variant cuda_ad_rgb \
+    --models lambert,conductor_ggx,conductor_beckmann,blend_lambert_ggx,plastic_smooth
+  step fit_merl_plastic 150 $PY benchmarks/bench_fit_merl.py --shared "$SHARED" --families plastic --repeats 1 \
+    --out "$OUT_DIR/fit_merl_plastic.json"
 fi
 ls -la "$OUT_DIR"

@@ -100,3 +100,26 @@ def test_fit_does_not_recompile_for_a_new_table_of_the_same_shape(x64):
     # ... and it really fitted the new values (the cache did not return the old answer).
     assert abs(float(r1.params["albedo"][0]) - 0.3) < 0.02
     assert abs(float(r2.params["albedo"][0]) - 0.7) < 0.03
+
+
+def _conductor_table(seed, n=40):
+    rng = np.random.default_rng(seed)
+    wo, wi = (R.random_directions(rng, n, "upper", 0.1) for _ in range(2))
+    f = R.conductor_eval(wo, wi, R.Dist("ggx", 0.3), [0.2, 0.9, 1.4], [3.6, 2.5, 1.9])
+    y = f * (1 + 0.05 * rng.standard_normal(f.shape)) + 1e-3
+    return Table(wo=wo, wi=wi, values=y, sigma=0.05 * y, channels="rgb")
+
+
+def test_log_prob_does_not_recompile_for_a_new_table_of_the_same_shape(x64):
+    from matfit.fitting import make_log_prob
+
+    Z = np.random.default_rng(3).normal(0, 1, size=(8, 7))
+    lp1 = make_log_prob(_conductor_table(0), "conductor")
+    v1 = lp1(Z)
+    with count_compilations() as seen:
+        lp2 = make_log_prob(_conductor_table(1), "conductor")
+        v2, v2_part = lp2(Z), lp2(Z[:5])
+    assert seen == [], f"make_log_prob recompiled for a table of the same shape: {seen}"
+    # the new table's values are the ones evaluated (the packed arguments are not the old ones)
+    assert np.all(np.abs(v2 - v1) > 1e-6 * np.abs(v1))
+    np.testing.assert_array_equal(v2_part, v2[:5])
