@@ -16,9 +16,11 @@ sigma (2 % noise), Gaussian likelihood, uniform priors, sampled in the unconstra
 
 ``--cores 1`` limits the process to one core before JAX starts (``matfit.parallel.use_cores``):
 XLA's thread pool then has one thread, and these small calls (16 points x 2048 rows) run faster
-without handing their loops to a second one. Both contenders run in that same process.
+without handing their loops to a second one. ``--sync`` also turns JAX's asynchronous CPU
+dispatch off (``matfit.parallel.for_small_calls``): the caller runs each call itself instead of
+handing it to a runtime thread and waiting. Both contenders run in that same process.
 
-Usage: python benchmarks/bench_emcee.py [--steps 3000] [--numpy-steps 200] [--rounds 5] [--quick] [--cores 1]
+Usage: python benchmarks/bench_emcee.py [--steps 3000] [--numpy-steps 200] [--rounds 5] [--quick] [--cores 1] [--sync]
 Writes benchmarks/results/emcee.json.
 """
 
@@ -47,7 +49,7 @@ from _common import print_table, summarize, write_json  # noqa: E402
 from matfit import Table  # noqa: E402
 from matfit.fitting import make_log_prob  # noqa: E402
 from matfit.fitting.params import Parametrization  # noqa: E402
-from matfit.parallel import use_cores  # noqa: E402
+from matfit.parallel import for_small_calls, use_cores  # noqa: E402
 from matfit.models import RoughConductor  # noqa: E402
 
 N_ROWS = 2048
@@ -83,8 +85,12 @@ def main(argv=None):
     ap.add_argument("--cores", type=int, default=None,
                     help="limit the process to this many cores before JAX starts (matfit.parallel.use_cores)")
     ap.add_argument("--out", default=None, help="JSON path (default RESULTS_DIR/emcee.json)")
+    ap.add_argument("--sync", action="store_true",
+                    help="JAX's asynchronous CPU dispatch off, with --cores if given (matfit.parallel.for_small_calls)")
     ns = ap.parse_args(argv)
-    if ns.cores:
+    if ns.sync:
+        for_small_calls(ns.cores)
+    elif ns.cores:
         use_cores(ns.cores)
     if ns.quick:
         ns.steps, ns.numpy_steps, ns.repeats, ns.rounds = 600, 40, 3, 2
@@ -163,7 +169,8 @@ def main(argv=None):
     print(f"tau (max over parameters) = {tau_max:.1f} steps, {ns.walkers} walkers")
     out = write_json("emcee", {"evaluations": rows, "runs": runs}, args=vars(ns),
                      extra={"rows": N_ROWS, "family": "conductor", "devices": len(jax.devices()),
-                            "cores_allowed": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None},
+                            "cores_allowed": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
+                            "async_dispatch": bool(jax.config.values["jax_cpu_enable_async_dispatch"])},
                      path=ns.out)
     print(f"wrote {out}")
     return rows, runs

@@ -35,7 +35,7 @@ from .errors import MatfitError
 #: Name of the mesh axis that the batch is split along.
 BATCH_AXIS = "batch"
 
-__all__ = ["BATCH_AXIS", "use_host_devices", "use_cores", "batch_mesh", "batch_sharding", "shard_batch",
+__all__ = ["BATCH_AXIS", "use_host_devices", "use_cores", "for_small_calls", "batch_mesh", "batch_sharding", "shard_batch",
            "device_count"]
 
 
@@ -124,6 +124,42 @@ def use_cores(n: int) -> int:
     allowed = sorted(os.sched_getaffinity(0))
     os.sched_setaffinity(0, allowed[:n])
     return len(os.sched_getaffinity(0))
+
+
+def for_small_calls(cores: int | None = 1) -> int:
+    """Set this process up for many small JAX calls on the CPU, such as an emcee run's: limit it
+    to ``cores`` cores (:func:`use_cores`; ``None`` keeps them all) and turn JAX's asynchronous
+    CPU dispatch off (``jax_cpu_enable_async_dispatch``).
+
+    With asynchronous dispatch, JAX's default, each call is handed to a runtime thread and the
+    caller then waits for its result: for a call of ~0.25 ms (16 walkers on a 2048-row table)
+    that hand-over costs about as much as a tenth of the call, and more when the thread has gone
+    idle while emcee's own Python ran. With dispatch off the caller runs the call itself. An
+    emcee step (``benchmarks/bench_emcee.py``'s posterior, float32) took 1.07-1.10 ms instead of
+    1.21-1.43 ms with one core (median over chunks of 400 steps, three processes each), and
+    1.50 instead of 1.70-1.78 ms with two (``docs/performance.md``). Large calls do not gain:
+    they keep their cores' worth of threads only with ``cores=None``.
+
+    Must run before JAX starts its backend (before the first array is created or
+    ``jax.devices()`` is called); importing jax or matfit first is fine.
+
+    Returns the number of cores the process may use. Raises :class:`matfit.errors.MatfitError`
+    when the backend has already started (or, with ``cores``, the platform cannot set an
+    affinity).
+
+    Examples
+    --------
+    >>> from matfit.parallel import for_small_calls
+    >>> for_small_calls()  # doctest: +SKIP
+    1
+    """
+    if _backend_started() is not False:
+        raise MatfitError("for_small_calls: the JAX backend already started (or this JAX version cannot tell): its "
+                          "dispatch mode and CPU thread pool are set; call it before the first JAX computation")
+    n = use_cores(cores) if cores is not None else len(os.sched_getaffinity(0)) if hasattr(
+        os, "sched_getaffinity") else os.cpu_count()
+    jax.config.update("jax_cpu_enable_async_dispatch", False)
+    return n
 
 
 def _devices(devices=None):

@@ -17,7 +17,7 @@ from matfit.errors import MatfitError, ParameterError
 from matfit.fast import channel_model, eval_soa, soa_pairs, supports_soa
 from matfit.microfacet import make_distribution
 from matfit.models import (Blend, CoatedConductor, Lambert, Plastic, RoughConductor, RoughDielectric)
-from matfit.parallel import shard_batch, use_cores, use_host_devices
+from matfit.parallel import for_small_calls, shard_batch, use_cores, use_host_devices
 
 ETA = [0.143, 0.375, 1.442]
 K = [3.983, 2.386, 1.603]
@@ -188,6 +188,30 @@ def test_use_cores_limits_the_process_before_jax_starts():
         from matfit.parallel import use_cores
         assert use_cores(1) == 1
         assert len(os.sched_getaffinity(0)) == 1
+        assert float(jnp.arange(4.0).sum()) == 6.0
+        print("ok")
+        """)
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0 and r.stdout.strip().endswith("ok"), r.stderr
+
+
+def test_for_small_calls_refuses_after_backend_start():
+    jax.devices()
+    with pytest.raises(MatfitError, match="already started"):
+        for_small_calls()
+    with pytest.raises(MatfitError, match="already started"):
+        for_small_calls(None)
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="CPU affinity is Linux-only")
+def test_for_small_calls_runs_synchronously_on_one_core():
+    code = textwrap.dedent(
+        """
+        import os, jax, jax.numpy as jnp
+        from matfit.parallel import for_small_calls
+        assert for_small_calls() == 1
+        assert len(os.sched_getaffinity(0)) == 1
+        assert jax.config.values["jax_cpu_enable_async_dispatch"] is False
         assert float(jnp.arange(4.0).sum()) == 6.0
         print("ok")
         """)

@@ -47,6 +47,14 @@ Run length
     (``converged=False``). The stored chain is thinned by ``thin = max(1, floor(min(tau) / 2))``
     unless ``thin`` is given.
 
+Speed
+    Each emcee step makes two calls of half the ensemble each. On a CPU, with a table of a few
+    thousand rows, these calls are small (~0.25 ms for 16 walkers x 2048 RGB rows in float32)
+    and a step is as much emcee's own Python as JAX: call
+    :func:`matfit.parallel.for_small_calls` before JAX starts (one core, synchronous dispatch)
+    for steps ~1.5x faster than JAX's defaults on a 2-core machine (``docs/performance.md``).
+    Large tables (a full MERL table) want every core instead.
+
 References
 ----------
 - D. Foreman-Mackey, D. W. Hogg, D. Lang, J. Goodman, "emcee: The MCMC Hammer", PASP 125, 2013.
