@@ -34,7 +34,9 @@ import sys
 import time
 from pathlib import Path
 
-os.environ.setdefault("XLA_FLAGS", f"--xla_force_host_platform_device_count={os.cpu_count() or 1}")
+# One CPU device, as in benchmarks/: it already runs large loops on every core, and two host
+# devices were measured no faster (benchmarks/bench_cores.py).
+os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=1")
 
 import jax  # noqa: E402
 
