@@ -81,6 +81,26 @@ def test_fit_batch_lm_fd_equals_single_fits(x64):
         np.testing.assert_allclose(values[i], r.values, rtol=1e-5, atol=1e-8)
 
 
+def test_large_table_multi_start_solves_each_start_like_a_single_start(x64, monkeypatch):
+    """With several starts a large table's solves run one after another: the first start (the
+    data-driven guess, the same for any start count) must end exactly where a one-start fit
+    ends, and every start's objective is finite and at least the best's."""
+    import importlib
+
+    fm = importlib.import_module("matfit.fitting.fit")
+    t = _table(n=4 * 8192 + 1000, seed=4, noise=0.01)
+    monkeypatch.setattr(fm, "COARSE_ROWS", 8192)
+    fm._solver.cache_clear()
+    multi = fit(t, model="conductor", method="lm_fd", loss="l2", starts=3)
+    one = fit(t, model="conductor", method="lm_fd", loss="l2", starts=1)
+    fm._solver.cache_clear()
+    objs = np.asarray(multi.start_objectives)
+    assert objs.shape == (3,) and np.all(np.isfinite(objs))
+    np.testing.assert_allclose(objs[0], one.objective, rtol=1e-12)
+    assert multi.objective == objs.min() <= one.objective
+    assert abs(float(multi.params["alpha"]) - 0.3) < 0.01
+
+
 def test_large_table_subset_start_reaches_the_plain_minimum(x64, monkeypatch):
     """A table of >= 4 * COARSE_ROWS rows is solved on a random subset first, then in full (with
     the line-minimum extrapolation): it must end at the minimum the plain full-table solve finds,
