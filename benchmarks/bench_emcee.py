@@ -11,8 +11,9 @@ sigma (2 % noise), Gaussian likelihood, uniform priors, sampled in the unconstra
   ``--steps`` steps (matfit, ``vectorize=True``) and ``--numpy-steps`` (numpy) from the same
   start, interleaved in ``--rounds`` rounds (each round continues every sampler for its share of
   the steps): the speedup is reported over the whole runs and per round (median, min, max), so
-  that the machine's load changing between contenders shows as spread; effective samples = walkers * steps / max(tau), with tau estimated on the matfit chain
-  (the same sampler and target: the autocorrelation time does not depend on who evaluates).
+  that the machine's load changing between contenders shows as spread; effective samples =
+  walkers * steps / max(tau), with tau estimated on the matfit chain (the same sampler and
+  target: the autocorrelation time does not depend on who evaluates).
 
 ``--cores 1`` limits the process to one core before JAX starts (``matfit.parallel.use_cores``):
 XLA's thread pool then has one thread, and these small calls (16 points x 2048 rows) run faster

@@ -35,8 +35,8 @@ from .errors import MatfitError
 #: Name of the mesh axis that the batch is split along.
 BATCH_AXIS = "batch"
 
-__all__ = ["BATCH_AXIS", "use_host_devices", "use_cores", "for_small_calls", "batch_mesh", "batch_sharding", "shard_batch",
-           "device_count"]
+__all__ = ["BATCH_AXIS", "use_host_devices", "use_cores", "for_small_calls", "batch_mesh", "batch_sharding",
+           "shard_batch", "device_count"]
 
 
 def _backend_started():
@@ -137,8 +137,9 @@ def for_small_calls(cores: int | None = 1) -> int:
     idle while emcee's own Python ran. With dispatch off the caller runs the call itself. An
     emcee step (``benchmarks/bench_emcee.py``'s posterior, float32) took 1.07-1.10 ms instead of
     1.21-1.43 ms with one core (median over chunks of 400 steps, three processes each), and
-    1.50 instead of 1.70-1.78 ms with two (``docs/performance.md``). Large calls do not gain:
-    they keep their cores' worth of threads only with ``cores=None``.
+    1.50 instead of 1.70-1.78 ms with two (``docs/performance.md``). Large calls (a full MERL
+    table's fit) run at half speed on one core: ``cores=None`` keeps every core and only turns
+    the dispatch off.
 
     Must run before JAX starts its backend (before the first array is created or
     ``jax.devices()`` is called); importing jax or matfit first is fine.
@@ -156,8 +157,10 @@ def for_small_calls(cores: int | None = 1) -> int:
     if _backend_started() is not False:
         raise MatfitError("for_small_calls: the JAX backend already started (or this JAX version cannot tell): its "
                           "dispatch mode and CPU thread pool are set; call it before the first JAX computation")
-    n = use_cores(cores) if cores is not None else len(os.sched_getaffinity(0)) if hasattr(
-        os, "sched_getaffinity") else os.cpu_count()
+    if cores is not None:
+        n = use_cores(cores)
+    else:
+        n = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     jax.config.update("jax_cpu_enable_async_dispatch", False)
     return n
 
