@@ -136,7 +136,7 @@ def main(argv=None):
         runs.append({"evaluator": name, "steps": 0, "wall_s": 0.0, "round_steps_per_s": [], "sampler": sampler,
                      "state": emcee.State(p0, random_state=np.random.RandomState(0).get_state())})
     for k in range(ns.rounds):
-        for r, (name, fn, steps, vec) in zip(runs, contenders):
+        for r, (_, _, steps, _) in zip(runs, contenders):
             n = steps // ns.rounds + (k < steps % ns.rounds)
             t0 = time.perf_counter()
             r["state"] = r["sampler"].run_mcmc(r["state"], n, progress=False)

@@ -227,7 +227,7 @@ class LogProb:
     """
 
     def __init__(self, par, batched, to_natural, args, noise, prior_desc, block, dtype):
-        self.par, self._batched, self._to_natural, self.args = par, batched, to_natural, args
+        self.par, self._to_natural, self.args = par, to_natural, args
         treedef, specs, self._flat = _pack(args, dtype)
         self._call = _packed(batched, treedef, specs)
         self.noise, self.prior = noise, prior_desc
