@@ -28,6 +28,7 @@ import numpy as np
 
 from ._math import IsoDir, Vec3, dot, normalize, tan_sq
 from .errors import ParameterError
+from .fresnel import FresnelAngle
 from .models import Blend, Lambert, Plastic, RoughConductor
 from .models._base import AbstractBSDF
 from .models._coat import is_smooth
@@ -48,8 +49,10 @@ class SoAPairs(eqx.Module):
         Components of shape ``(n_padded,)`` each, sharded along the batch.
     h : Vec3
         Reflection half vector ``normalize(wo + wi)`` (depends only on the directions).
-    cos_d : jax.Array
-        ``wo . h``, the cosine that the Fresnel term of a reflection lobe takes.
+    cos_d : FresnelAngle
+        The terms of ``wo . h``, the cosine that the Fresnel term of a reflection lobe takes
+        (:class:`~matfit.fresnel.FresnelAngle`: its clamped absolute value, square and
+        ``1 -`` square, once per pair instead of once per channel and parameter value).
     h_t2 : jax.Array
         ``h_x^2 + h_y^2``, the half vector's squared sine, from its components (``1 - h_z^2``
         would lose it to rounding near the normal, where ``D`` divides it by ``alpha^2``).
@@ -60,7 +63,7 @@ class SoAPairs(eqx.Module):
     wo: Vec3
     wi: Vec3
     h: Vec3
-    cos_d: jax.Array
+    cos_d: FresnelAngle
     h_t2: jax.Array
     n: int = eqx.field(static=True)
 
@@ -69,7 +72,7 @@ class SoAPairs(eqx.Module):
         """The pairs of component directions ``wo``, ``wi`` (already padded and placed), with
         their direction-only quantities computed once."""
         h, cos_d = half_vector(wo, wi)
-        return cls(wo, wi, h, cos_d, _tan_sq(h), int(n))
+        return cls(wo, wi, h, _fresnel_angle(cos_d), _tan_sq(h), int(n))
 
     @property
     def n_padded(self):
@@ -136,6 +139,7 @@ def half_vector(wo, wi):
 
 
 _tan_sq = jax.jit(tan_sq)
+_fresnel_angle = jax.jit(FresnelAngle.of)
 
 
 def supports_soa(model) -> bool:

@@ -11,6 +11,9 @@ References
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -67,6 +70,42 @@ def fresnel_dielectric(cos_theta_i, eta):
     return jnp.where(tir | grazing, 1.0, 0.5 * (sq(r_parl) + sq(r_perp)))
 
 
+class FresnelAngle(NamedTuple):
+    r"""The angle terms the Fresnel equations read of :math:`\cos\theta`: ``c`` =
+    :math:`|\cos\theta|` clamped to [0, 1], ``cos2`` = ``c**2`` and ``sin2`` = ``1 - cos2``.
+
+    :func:`fresnel_conductor` takes one in place of the cosine: where the angle depends only on
+    the directions (:class:`matfit.fast.SoAPairs`), they are computed once for every channel
+    and every parameter value instead of in each kernel.
+
+    Examples
+    --------
+    >>> from matfit.fresnel import FresnelAngle, fresnel_conductor
+    >>> import jax.numpy as jnp
+    >>> ang = FresnelAngle.of(jnp.array([0.5]))
+    >>> float(ang.sin2[0])
+    0.75
+    >>> eta, k = jnp.array([0.2]), jnp.array([3.6])
+    >>> bool(jnp.allclose(fresnel_conductor(ang, eta, k), fresnel_conductor(jnp.array([0.5]), eta, k)))
+    True
+    """
+
+    c: jax.Array
+    cos2: jax.Array
+    sin2: jax.Array
+
+    @classmethod
+    def of(cls, cos_theta) -> "FresnelAngle":
+        """The terms of the cosine(s) ``cos_theta`` (any sign; its absolute value is used)."""
+        c = jnp.clip(jnp.abs(jnp.asarray(cos_theta)), 0, 1)
+        cos2 = c * c
+        return cls(c, cos2, 1 - cos2)
+
+    def expand(self) -> "FresnelAngle":
+        """The terms with a trailing axis of length 1 (to broadcast against channels)."""
+        return FresnelAngle(*(x[..., None] for x in self))
+
+
 def fresnel_conductor(cos_theta_i, eta, k):
     r"""Unpolarized Fresnel reflectance of a conductor with complex index :math:`\eta + i k`.
 
@@ -83,8 +122,9 @@ def fresnel_conductor(cos_theta_i, eta, k):
 
     Parameters
     ----------
-    cos_theta_i : array_like
-        Cosine of the incidence angle; its absolute value is used.
+    cos_theta_i : array_like or FresnelAngle
+        Cosine of the incidence angle; its absolute value is used. Or its precomputed
+        :class:`FresnelAngle` terms.
     eta, k : array_like
         Real and imaginary parts of the relative complex index (per channel, last axis),
         ``eta > 0``, ``k >= 0``. With ``k = 0`` this equals :func:`fresnel_dielectric`.
@@ -99,7 +139,7 @@ def fresnel_conductor(cos_theta_i, eta, k):
     """
     check_range("fresnel_conductor", "eta", eta, 0.0, lo_open=True)
     check_range("fresnel_conductor", "k", k, 0.0)
-    c = jnp.clip(jnp.abs(jnp.asarray(cos_theta_i)), 0, 1)
+    c, cos2, sin2 = cos_theta_i if isinstance(cos_theta_i, FresnelAngle) else FresnelAngle.of(cos_theta_i)
     eta = jnp.asarray(eta)
     k = jnp.asarray(k)
     fi = jnp.finfo(jnp.result_type(c, eta, k))
@@ -107,8 +147,6 @@ def fresnel_conductor(cos_theta_i, eta, k):
     # precision), so that t0^2 and the products below stay finite.
     lim = float(fi.max) ** 0.25 / 4
     eta, k = jnp.minimum(eta, lim), jnp.minimum(k, lim)
-    cos2 = c * c
-    sin2 = 1 - cos2
     # eta^2 - k^2 - sin^2 written as t0 = (eta^2 - k^2 - 1) + cos^2: exact for an index-matched
     # surface (eta = 1, k = 0, where F must be exactly 0) and without cancellation near it.
     t0 = (sq(eta) - sq(k) - 1) + cos2

@@ -92,7 +92,9 @@ def test_split_normal_equations_equal_interleaved(central, x64):
     # The two layouts round differently; forward differences (h ~ 1e-8) turn that into ~1e-8.
     tol = 1e-9 if central else 1e-6
     np.testing.assert_allclose(np.asarray(As), np.asarray(A), rtol=tol, atol=tol * 1e-3 * np.abs(A).max())
-    np.testing.assert_allclose(np.asarray(gs), np.asarray(g), rtol=tol, atol=tol * 1e-3 * np.abs(g).max())
+    # g = J^T r sums ~2000 such entries: a component 600x smaller than the largest (here
+    # 0.005 of 3.0) keeps only the rounding of the largest, ~3e-12 of it with central differences.
+    np.testing.assert_allclose(np.asarray(gs), np.asarray(g), rtol=tol, atol=tol * 1e-2 * np.abs(g).max())
     # The covariance Jacobian stacks the channels back to (n, C, p).
     r_j, J = jacobian(sfn, z, sprep(arrays), *groups, central=central)
     assert r_j.shape == (2 * GRAM_BLOCK, 3) and J.shape == (2 * GRAM_BLOCK, 3, par.size)

@@ -99,6 +99,40 @@ class AbstractDistribution(eqx.Module):
         closed form of its own (GGX) overrides it."""
         return 1.0, 1 + self.Lambda(v)
 
+    def _D_ratio(self, m):
+        r"""``(num, den)`` with :math:`D(m)` = ``num / den`` for :math:`m_z > 0` (``den > 0``, no
+        indicator): lets :meth:`reflection_ratio` fold :math:`D` and :math:`G_2` into one
+        division. A distribution with a rational closed form (GGX) overrides it."""
+        return self.D(m), 1.0
+
+    def reflection_ratio(self, wo, wi, m, form="separable"):
+        r"""``(num, den, visible)``: :math:`D(m)\,G_2(\omega_o, \omega_i, m)` = ``num / den`` where
+        ``visible`` (the indicators of :math:`D` and of Smith's masking), else 0.
+
+        The product written as one quotient, so that an evaluator divides once (and can fold
+        its own guards into ``den``: :class:`~matfit.models.RoughConductor`). ``den`` is finite
+        and ``> 0`` wherever ``visible``; reflection only (``wo``, ``wi`` above the surface).
+
+        Examples
+        --------
+        >>> import jax.numpy as jnp
+        >>> from matfit.microfacet import GGX
+        >>> d = GGX(0.3)
+        >>> wo = jnp.array([0.0, 0.6, 0.8]); wi = jnp.array([0.6, 0.0, 0.8])
+        >>> m = (wo + wi) / jnp.linalg.norm(wo + wi)
+        >>> num, den, vis = d.reflection_ratio(wo, wi, m)
+        >>> bool(jnp.isclose(num / den, d.D(m) * d.G2(wo, wi, m)))
+        True
+        """
+        if form not in MASKING_FORMS:
+            raise ValueError(f"masking form must be one of {MASKING_FORMS}, got {form!r}")
+        visible = self._visible(wo, m) & self._visible(wi, m) & (m[..., 2] > 0)
+        dn, dd = self._D_ratio(m)
+        if form == "separable":
+            (no, do), (ni, di) = self._g1_ratio(wo), self._g1_ratio(wi)
+            return dn * (no * ni), dd * (do * di), visible
+        return dn, dd * (1 + self.Lambda(wo) + self.Lambda(wi)), visible
+
     @staticmethod
     def _visible(v, m):
         r"""The local visibility indicator :math:`\chi^+((v\cdot m)(v\cdot n))` of Smith's masking

@@ -40,12 +40,14 @@ class GGX(AbstractDistribution):
     has_visible_sampling = True
 
     def D(self, m):
+        num, den = self._D_ratio(m)
+        return jnp.where(m[..., 2] > 0, num / den, 0)
+
+    def _D_ratio(self, m):
         ax, ay = self._alphas()
-        mz2 = sq(m[..., 2])
         # 1 / alpha once per model, not a division per normal
-        t = tan_sq(m, 1 / ax, 1 / ay) + mz2
-        d = 1 / (jnp.pi * ax * ay * sq(t))
-        return jnp.where(m[..., 2] > 0, d, 0)
+        t = tan_sq(m, 1 / ax, 1 / ay) + sq(m[..., 2])
+        return 1.0, jnp.pi * ax * ay * sq(t)
 
     def Lambda(self, v):
         t = self._a2tan2(v)

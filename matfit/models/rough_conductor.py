@@ -31,7 +31,7 @@ import equinox as eqx
 import jax.numpy as jnp
 
 from .._math import COS_EPS, dot, normalize, safe_div, where_up
-from ..fresnel import fresnel_conductor
+from ..fresnel import FresnelAngle, fresnel_conductor
 from ._microfacet import AbstractMicrofacetBSDF
 from ._params import as_channels, check_channels, check_directions, check_range, check_u
 
@@ -76,17 +76,26 @@ class RoughConductor(AbstractMicrofacetBSDF):
         """:meth:`eval` with the half vector ``h = normalize(wo + wi)`` and ``cos_d = wo . h`` given.
 
         Both depend only on the directions: :mod:`matfit.fast` computes them once for many
-        evaluations. ``wo, wi, h`` may be ``(..., 3)`` arrays or :class:`matfit._math.Vec3`.
+        evaluations. ``wo, wi, h`` may be ``(..., 3)`` arrays or :class:`matfit._math.Vec3`;
+        ``cos_d`` an array or its :class:`~matfit.fresnel.FresnelAngle` terms.
         """
         ok = self._valid(wo, wi)
         d = self.dist()
         # double where: invalid pairs (at or below the horizon) are evaluated at the normal
         wo, wi, h = where_up(ok, wo), where_up(ok, wi), where_up(ok, h)
-        # 0 on invalid pairs through the denominator (inf there), inside the division: XLA keeps
-        # the guard in the loop that computes spec, and F is guarded by spec alone, so a kernel
-        # per channel reads only spec and cos_d, not the directions again (matfit.fast).
-        spec = d.D(h) * d.G2(wo, wi, h, self.masking) / jnp.where(ok, 4 * wo[..., 2] * wi[..., 2], jnp.inf)
-        F = fresnel_conductor(jnp.where(spec > 0, cos_d, 1)[..., None], self.eta, self.k)
+        # D G2 as one quotient, 0 on invalid pairs through its denominator (inf there): XLA
+        # computes it in one loop of its own (a guard outside a division would be recomputed in
+        # every loop that reads it), and F is guarded by spec alone, so a kernel per channel
+        # reads only spec and cos_d, not the directions again (matfit.fast). 1 / (4 cos cos)
+        # stays a factor of its own: inside the quotient, float32 gradients overflow near
+        # grazing at alpha = ALPHA_MIN (den^-2 < 1e-38).
+        num, den, visible = d.reflection_ratio(wo, wi, h, self.masking)
+        dg = num / jnp.where(ok & visible, den, jnp.inf)
+        spec = dg / jnp.where(ok, 4 * wo[..., 2] * wi[..., 2], jnp.inf)
+        if isinstance(cos_d, FresnelAngle):  # precomputed, finite and in range by construction
+            F = fresnel_conductor(cos_d.expand(), self.eta, self.k)
+        else:
+            F = fresnel_conductor(jnp.where(spec > 0, cos_d, 1)[..., None], self.eta, self.k)
         return spec[..., None] * F
 
     def pdf(self, wo, wi):
