@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._math import IsoDir, Vec3, dot, normalize, tan_sq
+from ._math import IsoDir, Vec3, dot, normalize, tan_sq, where_up
 from .errors import ParameterError
 from .fresnel import FresnelAngle
 from .models import Blend, Lambert, Plastic, RoughConductor
@@ -56,6 +56,10 @@ class SoAPairs(eqx.Module):
     h_t2 : jax.Array
         ``h_x^2 + h_y^2``, the half vector's squared sine, from its components (``1 - h_z^2``
         would lose it to rounding near the normal, where ``D`` divides it by ``alpha^2``).
+    iso : tuple of jax.Array
+        What :meth:`isotropic` hands an isotropic lobe, computed once: the pairs' validity
+        (:meth:`~matfit.models.RoughConductor.valid_pair`) and the cosines and squared sines of
+        ``wo``, ``wi``, ``h`` with invalid pairs already mapped to the normal.
     n : int
         Number of valid pairs (the first ``n`` entries); static.
     """
@@ -65,6 +69,7 @@ class SoAPairs(eqx.Module):
     h: Vec3
     cos_d: FresnelAngle
     h_t2: jax.Array
+    iso: tuple
     n: int = eqx.field(static=True)
 
     @classmethod
@@ -72,16 +77,22 @@ class SoAPairs(eqx.Module):
         """The pairs of component directions ``wo``, ``wi`` (already padded and placed), with
         their direction-only quantities computed once."""
         h, cos_d = half_vector(wo, wi)
-        return cls(wo, wi, h, _fresnel_angle(cos_d), _tan_sq(h), int(n))
+        h_t2 = _tan_sq(h)
+        return cls(wo, wi, h, _fresnel_angle(cos_d), h_t2, _iso_terms(wo, wi, h, h_t2), int(n))
 
     @property
     def n_padded(self):
         return int(self.wo.x.shape[0])
 
     def isotropic(self):
-        """``(wo, wi, h)`` as :class:`~matfit._math.IsoDir`: what an isotropic microfacet lobe
-        reads of the pairs (the cosines; ``h``'s squared sine from :attr:`h_t2`)."""
-        return IsoDir.from_cos(self.wo.z), IsoDir.from_cos(self.wi.z), IsoDir(self.h.z, self.h_t2)
+        """``(wo, wi, h, ok)``: the directions as :class:`~matfit._math.IsoDir` (what an isotropic
+        microfacet lobe reads of them: cosines, and ``h``'s squared sine from :attr:`h_t2`),
+        already mapped to the normal where ``ok`` (the pairs' validity) is False, as the
+        ``ok`` argument of :meth:`~matfit.models.RoughConductor.eval_half` expects. Computed
+        once per table: a kernel then repeats none of these per-pair guards for every parameter
+        value."""
+        ok, oz, ot2, iz, it2, hz, ht2 = self.iso
+        return IsoDir(oz, ot2), IsoDir(iz, it2), IsoDir(hz, ht2), ok
 
 
 def soa_pairs(wo, wi, dtype=None, devices=None) -> SoAPairs:
@@ -139,6 +150,13 @@ def half_vector(wo, wi):
 
 
 _tan_sq = jax.jit(tan_sq)
+
+
+@jax.jit
+def _iso_terms(wo, wi, h, h_t2):
+    ok = RoughConductor.valid_pair(wo, wi)
+    dirs = (where_up(ok, d) for d in (IsoDir.from_cos(wo.z), IsoDir.from_cos(wi.z), IsoDir(h.z, h_t2)))
+    return (ok,) + tuple(x for d in dirs for x in (d.z, d.t2))
 _fresnel_angle = jax.jit(FresnelAngle.of)
 
 
@@ -205,7 +223,8 @@ def _eval_pairs(m, pairs):
         return m.mix(_eval_pairs(m.a, pairs), _eval_pairs(m.b, pairs))
     if isinstance(m, RoughConductor):
         if m.alpha_y is None:
-            return m.eval_half(*pairs.isotropic(), pairs.cos_d)
+            wo, wi, h, ok = pairs.isotropic()
+            return m.eval_half(wo, wi, h, pairs.cos_d, ok=ok)
         return m.eval_half(pairs.wo, pairs.wi, pairs.h, pairs.cos_d)
     return m.eval(pairs.wo, pairs.wi)
 

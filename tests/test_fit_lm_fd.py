@@ -57,7 +57,11 @@ def test_grouped_jacobian_matches_forward_mode(family, x64):
 def test_lm_fd_reaches_scipy_loss(x64):
     from scipy.optimize import least_squares
 
-    t = _table()
+    # 0.5 % noise keeps the minimum inside the bounds: with 2 % on 96 rows the red eta runs to
+    # its lower bound, where both solvers creep along the flat tail of the bound's sigmoid and
+    # stop wherever a step's decrease falls below tolerance (1e-10 to 1e-7 of the loss apart,
+    # depending on the Jacobian's last bits).
+    t = _table(noise=0.005)
     # Tolerances as tight as scipy's here: with the default rtol = 1e-8 lm_fd stops like
     # least_squares(ftol=1e-8) does, once a step lowers the objective by less than 1e-8 of it.
     r = fit(t, model="conductor", method="lm_fd", starts=1, dtype=jnp.float64, rtol=1e-12, atol=1e-14)
@@ -67,7 +71,7 @@ def test_lm_fd_reaches_scipy_loss(x64):
     z0 = np.asarray(par.z_from_theta(initial_guess(t, par)))
     ref = least_squares(lambda z: np.asarray(fn(jnp.asarray(z), arrays)), z0, xtol=1e-12, ftol=1e-12, gtol=1e-12)
     assert r.converged
-    assert abs(r.objective - ref.cost) <= 1e-7 * ref.cost
+    assert abs(r.objective - ref.cost) <= 1e-10 * ref.cost
     # And it recovers the generating parameters within the noise.
     np.testing.assert_allclose(r.params["alpha"], 0.3, rtol=0.05)
 
