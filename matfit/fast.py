@@ -28,7 +28,7 @@ import numpy as np
 
 from ._math import IsoDir, Vec3, dot, normalize, tan_sq, where_up
 from .errors import ParameterError
-from .fresnel import FresnelAngle
+from .fresnel import FresnelAngle, clamp_cos
 from .models import Blend, Lambert, Plastic, RoughConductor
 from .models._base import AbstractBSDF
 from .models._coat import is_smooth
@@ -49,17 +49,17 @@ class SoAPairs(eqx.Module):
         Components of shape ``(n_padded,)`` each, sharded along the batch.
     h : Vec3
         Reflection half vector ``normalize(wo + wi)`` (depends only on the directions).
-    cos_d : FresnelAngle
-        The terms of ``wo . h``, the cosine that the Fresnel term of a reflection lobe takes
-        (:class:`~matfit.fresnel.FresnelAngle`: its clamped absolute value, square and
-        ``1 -`` square, once per pair instead of once per channel and parameter value).
+    cos_d : jax.Array
+        ``wo . h``, the cosine that the Fresnel term of a reflection lobe takes, as
+        :func:`~matfit.fresnel.clamp_cos` of it (once per pair instead of once per channel and
+        parameter value); :meth:`fresnel_angle` gives its :class:`~matfit.fresnel.FresnelAngle`.
     h_t2 : jax.Array
         ``h_x^2 + h_y^2``, the half vector's squared sine, from its components (``1 - h_z^2``
         would lose it to rounding near the normal, where ``D`` divides it by ``alpha^2``).
     iso : tuple of jax.Array
         What :meth:`isotropic` hands an isotropic lobe, computed once: the pairs' validity
-        (:meth:`~matfit.models.RoughConductor.valid_pair`) and the cosines and squared sines of
-        ``wo``, ``wi``, ``h`` with invalid pairs already mapped to the normal.
+        (:meth:`~matfit.models.RoughConductor.valid_pair`), the cosines of ``wo``, ``wi``, ``h``
+        and ``h``'s squared sine, with invalid pairs already mapped to the normal.
     n : int
         Number of valid pairs (the first ``n`` entries); static.
     """
@@ -67,7 +67,7 @@ class SoAPairs(eqx.Module):
     wo: Vec3
     wi: Vec3
     h: Vec3
-    cos_d: FresnelAngle
+    cos_d: jax.Array
     h_t2: jax.Array
     iso: tuple
     n: int = eqx.field(static=True)
@@ -78,7 +78,7 @@ class SoAPairs(eqx.Module):
         their direction-only quantities computed once."""
         h, cos_d = half_vector(wo, wi)
         h_t2 = _tan_sq(h)
-        return cls(wo, wi, h, _fresnel_angle(cos_d), h_t2, _iso_terms(wo, wi, h, h_t2), int(n))
+        return cls(wo, wi, h, _clamp_cos(cos_d), h_t2, _iso_terms(wo, wi, h, h_t2), int(n))
 
     @property
     def n_padded(self):
@@ -91,8 +91,12 @@ class SoAPairs(eqx.Module):
         ``ok`` argument of :meth:`~matfit.models.RoughConductor.eval_half` expects. Computed
         once per table: a kernel then repeats none of these per-pair guards for every parameter
         value."""
-        ok, oz, ot2, iz, it2, hz, ht2 = self.iso
-        return IsoDir(oz, ot2), IsoDir(iz, it2), IsoDir(hz, ht2), ok
+        ok, oz, iz, hz, ht2 = self.iso
+        return IsoDir.from_cos(oz), IsoDir.from_cos(iz), IsoDir(hz, ht2), ok
+
+    def fresnel_angle(self):
+        """:class:`~matfit.fresnel.FresnelAngle` of :attr:`cos_d`."""
+        return FresnelAngle.of_clamped(self.cos_d)
 
 
 def soa_pairs(wo, wi, dtype=None, devices=None) -> SoAPairs:
@@ -155,9 +159,9 @@ _tan_sq = jax.jit(tan_sq)
 @jax.jit
 def _iso_terms(wo, wi, h, h_t2):
     ok = RoughConductor.valid_pair(wo, wi)
-    dirs = (where_up(ok, d) for d in (IsoDir.from_cos(wo.z), IsoDir.from_cos(wi.z), IsoDir(h.z, h_t2)))
-    return (ok,) + tuple(x for d in dirs for x in (d.z, d.t2))
-_fresnel_angle = jax.jit(FresnelAngle.of)
+    h = where_up(ok, IsoDir(h.z, h_t2))  # wo and wi: their cosines, mapped to 1
+    return ok, jnp.where(ok, wo.z, 1), jnp.where(ok, wi.z, 1), h.z, h.t2
+_clamp_cos = jax.jit(clamp_cos)
 
 
 def supports_soa(model) -> bool:
@@ -224,8 +228,8 @@ def _eval_pairs(m, pairs):
     if isinstance(m, RoughConductor):
         if m.alpha_y is None:
             wo, wi, h, ok = pairs.isotropic()
-            return m.eval_half(wo, wi, h, pairs.cos_d, ok=ok)
-        return m.eval_half(pairs.wo, pairs.wi, pairs.h, pairs.cos_d)
+            return m.eval_half(wo, wi, h, pairs.fresnel_angle(), ok=ok)
+        return m.eval_half(pairs.wo, pairs.wi, pairs.h, pairs.fresnel_angle())
     return m.eval(pairs.wo, pairs.wi)
 
 

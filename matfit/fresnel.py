@@ -70,6 +70,11 @@ def fresnel_dielectric(cos_theta_i, eta):
     return jnp.where(tir | grazing, 1.0, 0.5 * (sq(r_parl) + sq(r_perp)))
 
 
+def clamp_cos(cos_theta):
+    """``|cos_theta|`` clamped to [0, 1]: the cosine every Fresnel formula here reads."""
+    return jnp.clip(jnp.abs(jnp.asarray(cos_theta)), 0, 1)
+
+
 class FresnelAngle(NamedTuple):
     r"""The angle terms the Fresnel equations read of :math:`\cos\theta`: ``c`` =
     :math:`|\cos\theta|` clamped to [0, 1], ``cos2`` = ``c**2`` and ``sin2`` = ``1 - cos2``.
@@ -97,7 +102,12 @@ class FresnelAngle(NamedTuple):
     @classmethod
     def of(cls, cos_theta) -> "FresnelAngle":
         """The terms of the cosine(s) ``cos_theta`` (any sign; its absolute value is used)."""
-        c = jnp.clip(jnp.abs(jnp.asarray(cos_theta)), 0, 1)
+        return cls.of_clamped(clamp_cos(cos_theta))
+
+    @classmethod
+    def of_clamped(cls, c) -> "FresnelAngle":
+        """The terms of ``c`` = :func:`clamp_cos` of a cosine (stored once per pair: the two
+        products are cheaper to redo than to read from memory for a million pairs)."""
         cos2 = c * c
         return cls(c, cos2, 1 - cos2)
 
