@@ -49,10 +49,11 @@ Run length
 
 Speed
     Each emcee step makes two calls of half the ensemble each. On a CPU, with a table of a few
-    thousand rows, these calls are small (~0.25 ms for 16 walkers x 2048 RGB rows in float32)
-    and a step is as much emcee's own Python as JAX: call
+    thousand rows, these calls are small (~0.16-0.21 ms for 16 walkers x 2048 RGB rows of the
+    conductor family in float32) and a step is as much emcee's own Python as JAX: call
     :func:`matfit.parallel.for_small_calls` before JAX starts (one core, synchronous dispatch)
-    for steps ~1.5x faster than JAX's defaults on a 2-core machine (``docs/performance.md``).
+    for steps ~1.4x faster than JAX's defaults on a 2-core machine, 22-24x a numpy
+    log-probability (``docs/performance.md``).
     Large tables (a full MERL table) want every core instead.
 
 References
