@@ -101,7 +101,8 @@ def test_large_table_multi_start_solves_each_start_like_a_single_start(x64, monk
     objs = np.asarray(multi.start_objectives)
     assert objs.shape == (3,) and np.all(np.isfinite(objs))
     np.testing.assert_allclose(objs[0], one.objective, rtol=1e-12)
-    assert multi.objective == objs.min() <= one.objective
+    # no worse than the one-start fit, up to the rounding that the line above allows
+    assert multi.objective == objs.min() <= one.objective * (1 + 1e-12)
     assert abs(float(multi.params["alpha"]) - 0.3) < 0.01
 
 
