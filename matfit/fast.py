@@ -156,12 +156,16 @@ def half_vector(wo, wi):
 _tan_sq = jax.jit(tan_sq)
 
 
+_clamp_cos = jax.jit(clamp_cos)
+
+
 @jax.jit
 def _iso_terms(wo, wi, h, h_t2):
     ok = RoughConductor.valid_pair(wo, wi)
-    h = where_up(ok, IsoDir(h.z, h_t2))  # wo and wi: their cosines, mapped to 1
+    # wo and wi keep only their cosines (1 where invalid; isotropic() rebuilds their sines,
+    # cheaper than reading them for a million pairs); h keeps its exact squared sine
+    h = where_up(ok, IsoDir(h.z, h_t2))
     return ok, jnp.where(ok, wo.z, 1), jnp.where(ok, wi.z, 1), h.z, h.t2
-_clamp_cos = jax.jit(clamp_cos)
 
 
 def supports_soa(model) -> bool:
