@@ -128,10 +128,17 @@ class AbstractDistribution(eqx.Module):
             raise ValueError(f"masking form must be one of {MASKING_FORMS}, got {form!r}")
         visible = self._visible(wo, m) & self._visible(wi, m) & (m[..., 2] > 0)
         dn, dd = self._D_ratio(m)
+        gn, gd = self._g2_reflection_ratio(wo, wi, form)
+        return dn * gn, dd * gd, visible
+
+    def _g2_reflection_ratio(self, wo, wi, form):
+        r"""``(num, den)`` with :meth:`G2` for reflection = ``num / den`` where both directions
+        are visible (without the indicators): :math:`G_1 G_1` as one ratio, or
+        :math:`1 / (1 + \Lambda_o + \Lambda_i)`."""
         if form == "separable":
             (no, do), (ni, di) = self._g1_ratio(wo), self._g1_ratio(wi)
-            return dn * (no * ni), dd * (do * di), visible
-        return dn, dd * (1 + self.Lambda(wo) + self.Lambda(wi)), visible
+            return no * ni, do * di
+        return 1.0, 1 + self.Lambda(wo) + self.Lambda(wi)
 
     @staticmethod
     def _visible(v, m):
@@ -160,8 +167,8 @@ class AbstractDistribution(eqx.Module):
             raise ValueError(f"masking form must be one of {MASKING_FORMS}, got {form!r}")
         chi = self._visible(wo, m) & self._visible(wi, m)
         if form == "separable":  # G1(wo) G1(wi) as one ratio
-            (no, do), (ni, di) = self._g1_ratio(wo), self._g1_ratio(wi)
-            return jnp.where(chi, (no * ni) / (do * di), 0)
+            num, den = self._g2_reflection_ratio(wo, wi, form)
+            return jnp.where(chi, num / den, 0)
         lo = self.Lambda(wo)
         li = self.Lambda(wi)
         refl = wo[..., 2] * wi[..., 2] > 0
