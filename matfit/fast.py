@@ -53,13 +53,12 @@ class SoAPairs(eqx.Module):
         ``wo . h``, the cosine that the Fresnel term of a reflection lobe takes, as
         :func:`~matfit.fresnel.clamp_cos` of it (once per pair instead of once per channel and
         parameter value); :meth:`fresnel_angle` gives its :class:`~matfit.fresnel.FresnelAngle`.
-    h_t2 : jax.Array
-        ``h_x^2 + h_y^2``, the half vector's squared sine, from its components (``1 - h_z^2``
-        would lose it to rounding near the normal, where ``D`` divides it by ``alpha^2``).
     iso : tuple of jax.Array
         What :meth:`isotropic` hands an isotropic lobe, computed once: the pairs' validity
         (:meth:`~matfit.models.RoughConductor.valid_pair`), the cosines of ``wo``, ``wi``, ``h``
-        and ``h``'s squared sine, with invalid pairs already mapped to the normal.
+        and ``h``'s squared sine ``h_x^2 + h_y^2`` (from its components: ``1 - h_z^2`` would lose
+        it to rounding near the normal, where ``D`` divides it by ``alpha^2``), with invalid
+        pairs already mapped to the normal.
     n : int
         Number of valid pairs (the first ``n`` entries); static.
     """
@@ -68,7 +67,6 @@ class SoAPairs(eqx.Module):
     wi: Vec3
     h: Vec3
     cos_d: jax.Array
-    h_t2: jax.Array
     iso: tuple
     n: int = eqx.field(static=True)
 
@@ -77,8 +75,7 @@ class SoAPairs(eqx.Module):
         """The pairs of component directions ``wo``, ``wi`` (already padded and placed), with
         their direction-only quantities computed once."""
         h, cos_d = half_vector(wo, wi)
-        h_t2 = _tan_sq(h)
-        return cls(wo, wi, h, _clamp_cos(cos_d), h_t2, _iso_terms(wo, wi, h, h_t2), int(n))
+        return cls(wo, wi, h, _clamp_cos(cos_d), _iso_terms(wo, wi, h), int(n))
 
     @property
     def n_padded(self):
@@ -86,7 +83,7 @@ class SoAPairs(eqx.Module):
 
     def isotropic(self):
         """``(wo, wi, h, ok)``: the directions as :class:`~matfit._math.IsoDir` (what an isotropic
-        microfacet lobe reads of them: cosines, and ``h``'s squared sine from :attr:`h_t2`),
+        microfacet lobe reads of them: cosines, and ``h``'s squared sine),
         already mapped to the normal where ``ok`` (the pairs' validity) is False, as the
         ``ok`` argument of :meth:`~matfit.models.RoughConductor.eval_half` expects. Computed
         once per table: a kernel then repeats none of these per-pair guards for every parameter
@@ -153,18 +150,15 @@ def half_vector(wo, wi):
     return h, dot(wo, h)
 
 
-_tan_sq = jax.jit(tan_sq)
-
-
 _clamp_cos = jax.jit(clamp_cos)
 
 
 @jax.jit
-def _iso_terms(wo, wi, h, h_t2):
+def _iso_terms(wo, wi, h):
     ok = RoughConductor.valid_pair(wo, wi)
     # wo and wi keep only their cosines (1 where invalid; isotropic() rebuilds their sines,
     # cheaper than reading them for a million pairs); h keeps its exact squared sine
-    h = where_up(ok, IsoDir(h.z, h_t2))
+    h = where_up(ok, IsoDir(h.z, tan_sq(h)))
     return ok, jnp.where(ok, wo.z, 1), jnp.where(ok, wi.z, 1), h.z, h.t2
 
 

@@ -113,7 +113,7 @@ def test_isotropic_distributions_read_only_cosines(kind, x64, rng):
 
 
 def test_float32_kernel_keeps_sharp_peaks(rng, x64):
-    # The cosine-only kernel takes h's squared sine from its components (SoAPairs.h_t2): near the
+    # The cosine-only kernel takes h's squared sine from its components (SoAPairs.iso): near the
     # peak of a sharp lobe 1 - h_z^2 would keep ~2 digits of it in float32 (D off by percents).
     # Against the float64 reference on the same (float32-rounded) directions: float32 rounding.
     alpha = 2e-3
