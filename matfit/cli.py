@@ -135,12 +135,13 @@ def _param_table(result, truth_params=None, posterior=None):
 
 
 def _cmd_fit(args):
+    from .fitting.methods import DEFAULT_METHOD
     from .fitting.select import robust_fit
     from .report import truth_from_table, write_report
 
     table, full = _load_table(args.table, args.subsample, args.seed, with_full=True)
     fixed = _parse_fixed(args.fixed)
-    method = "lm" if args.method == "mcmc" else args.method
+    method = DEFAULT_METHOD if args.method == "mcmc" else args.method
     result = robust_fit(table, args.model, method=method, loss=args.loss, fixed=fixed, starts=args.starts,
                         max_steps=args.max_steps, seed=args.seed)
     posterior = None
@@ -227,6 +228,7 @@ def _fraction(s):
 
 def build_parser():
     from .fitting import FAMILIES, LOSSES
+    from .fitting.methods import DEFAULT_METHOD, METHODS
 
     p = _Parser(prog="matfit", description="Differentiable physically based material fitting.")
     sub = p.add_subparsers(dest="command", required=True)
@@ -247,8 +249,9 @@ def build_parser():
     fi.add_argument("table", help="table or measured file (.npz .csv .binary .bsdf .alta)")
     fi.add_argument("--model", required=True, choices=families, metavar="NAME",
                     help=f"model family: {', '.join(families)}")
-    fi.add_argument("--method", default="lm", choices=["lm", "gn", "dogleg", "bfgs", "lbfgs", "mcmc"],
-                    help="solver (default lm); mcmc: lm, then posterior sampling")
+    fi.add_argument("--method", default=DEFAULT_METHOD, choices=list(METHODS) + ["mcmc"],
+                    help=f"solver (default {DEFAULT_METHOD}; see matfit.fitting.methods); "
+                         f"mcmc: {DEFAULT_METHOD}, then posterior sampling")
     fi.add_argument("--loss", default="l2", choices=list(LOSSES), help="loss (default l2)")
     fi.add_argument("--fixed", nargs="+", action="extend", default=[], metavar="NAME=VALUE",
                     help="hold parameters fixed, e.g. --fixed eta=1.5 albedo=0.2,0.3,0.4")
@@ -269,7 +272,8 @@ def build_parser():
     co.add_argument("--holdout", type=_fraction, default=0.2, help="hold-out fraction (default 0.2)")
     co.add_argument("--tol", type=float, default=0.02,
                     help="relative hold-out tolerance for preferring a simpler family (default 0.02)")
-    co.add_argument("--method", default="lm", choices=["lm", "gn", "dogleg", "bfgs", "lbfgs"], help="solver")
+    co.add_argument("--method", default=DEFAULT_METHOD, choices=list(METHODS),
+                    help=f"solver (default {DEFAULT_METHOD})")
     co.add_argument("--loss", default="l2", choices=list(LOSSES), help="loss (default l2)")
     co.add_argument("--fixed", nargs="+", action="extend", default=[], metavar="NAME=VALUE", help="as for fit (families that have it)")
     co.add_argument("--subsample", type=_positive_int, default=None, metavar="N", help="use N random valid rows")
@@ -284,6 +288,9 @@ def main(argv=None):
     """Entry point of the ``matfit`` command."""
     parser = build_parser()
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
+    from .cache import enable_compilation_cache
+
+    enable_compilation_cache()  # compile once per machine (MATFIT_NO_CACHE=1 turns it off)
     try:
         return args.func(args)
     except (ValueError, OSError) as exc:  # clear one-line errors for the user

@@ -117,7 +117,7 @@ def run_fit_demo(out: Path, scene="demo", family="conductor", mcmc_steps=1500, c
     save(out / "demo_synth.npz", table)
     print(f"\n== fitting the built-in scene '{scene}': {table.provenance.get('description', '')}")
     print(f"wrote {out / 'demo_synth.npz'}: {len(table)} rows, channels {table.channels}")
-    result = robust_fit(table, family, method="lm")
+    result = robust_fit(table, family)
     print(result.summary().splitlines()[0])
     posterior = None
     try:

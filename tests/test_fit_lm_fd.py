@@ -85,10 +85,11 @@ def test_fit_batch_lm_fd_equals_single_fits(x64):
         np.testing.assert_allclose(values[i], r.values, rtol=1e-5, atol=1e-8)
 
 
-def test_large_table_multi_start_solves_each_start_like_a_single_start(x64, monkeypatch):
-    """With several starts a large table's solves run one after another: the first start (the
-    data-driven guess, the same for any start count) must end exactly where a one-start fit
-    ends, and every start's objective is finite and at least the best's."""
+def test_large_table_multi_start_solves_the_best_subset_start_in_full(x64, monkeypatch):
+    """With several starts a large table's starts are solved on its subset one after another and
+    only the best of them on the whole table: the result is no worse than a one-start fit from
+    the data-driven guess, every start's objective on the whole table is finite and at least the
+    best's, and the result says how it was computed."""
     import importlib
 
     fm = importlib.import_module("matfit.fitting.fit")
@@ -100,9 +101,8 @@ def test_large_table_multi_start_solves_each_start_like_a_single_start(x64, monk
     fm._solver.cache_clear()
     objs = np.asarray(multi.start_objectives)
     assert objs.shape == (3,) and np.all(np.isfinite(objs))
-    np.testing.assert_allclose(objs[0], one.objective, rtol=1e-12)
-    # no worse than the one-start fit, up to the rounding that the line above allows
     assert multi.objective == objs.min() <= one.objective * (1 + 1e-12)
+    assert any("subset" in note for note in multi.info)
     assert abs(float(multi.params["alpha"]) - 0.3) < 0.01
 
 

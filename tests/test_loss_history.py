@@ -31,7 +31,7 @@ def fitted():
     jax.config.update("jax_enable_x64", True)
     rng = np.random.default_rng(7)
     t = _table(rng)
-    kw = dict(loss="e2", starts=3, seed=1, max_steps=50, init={"albedo": np.array([0.9, 0.9, 0.9])})
+    kw = dict(method="lm", loss="e2", starts=3, seed=1, max_steps=50, init={"albedo": np.array([0.9, 0.9, 0.9])})
     return t, fit(t, "lambert", **kw), loss_history(t, "lambert", **kw)
 
 

@@ -2,11 +2,12 @@
 
 from .fit import METHODS, FitError, FitResult, fit, fit_batch, initial_guess, initial_guesses
 from .losses import LOSSES, residuals
+from .methods import DEFAULT_METHOD, Method, get_method
 from .params import FAMILIES, Family, Param, Parametrization, get_family
 
 __all__ = [
     "FAMILIES", "Family", "Param", "Parametrization", "get_family",
-    "LOSSES", "residuals",
+    "LOSSES", "residuals", "DEFAULT_METHOD", "Method", "get_method",
     "METHODS", "FitError", "FitResult", "fit", "fit_batch", "initial_guess", "initial_guesses",
 ]
 from .mcmc import NOISE_MODES, LogProb, PosteriorResult, SamplingError, make_log_prob, sample_posterior

@@ -90,13 +90,18 @@ def identifiability(Jt, labels, lower, upper, gram=None):
 
 
 def diagnose(*, labels, values, stderr, lower, upper, residuals, converged, steps, max_steps, known_sigma,
-             dof, Jt=None, gram=None, data_scale=0.0, start_values=None, start_objectives=None, best=0):
+             dof, Jt=None, gram=None, data_scale=0.0, start_values=None, start_objectives=None, best=0,
+             start_reference=None, start_stderr=None):
     """Warnings (list of str) about a fit's optimum; see the module docstring for each check.
 
     The Jacobian in natural parameters enters as ``Jt`` (n, p) or as its Gram matrix ``gram``.
 
     ``data_scale`` is the root mean square of the weighted data: residual spreads below
     ``1e-7 * data_scale`` count as an exact fit (no outlier test on rounding noise).
+    ``start_values`` / ``start_objectives`` are what each start reached; they are compared with
+    ``start_reference`` at ``start_stderr`` (default: ``values`` and ``stderr``). A large table's
+    starts are compared where they ended on its subset (``fit`` then passes the best start's
+    subset solution and the subset's standard errors).
     Returns ``(warnings, unidentified)``; ``unidentified`` lists the labels whose standard errors
     should be reported as ``inf``.
     """
@@ -136,12 +141,14 @@ def diagnose(*, labels, values, stderr, lower, upper, residuals, converged, step
         ob = np.asarray(start_objectives, float)
         sv = np.asarray(start_values, float)
         best_obj = ob[best]
-        se = np.where(np.isfinite(stderr) & (stderr > 0), stderr, np.inf)
+        ref = values if start_reference is None else np.asarray(start_reference, float)
+        sref = stderr if start_stderr is None else np.asarray(start_stderr, float)
+        se = np.where(np.isfinite(sref) & (sref > 0), sref, np.inf)
         for j in range(len(ob)):
             if j == best or not np.isfinite(ob[j]):
                 continue
             close = abs(ob[j] - best_obj) <= 1e-3 * max(abs(best_obj), 1e-300)
-            far = np.any(np.abs(sv[j] - values) > 5 * se)
+            far = np.any(np.abs(sv[j] - ref) > 5 * se)
             if close and far:
                 out.append("multiple optima: another start reached the same objective at different parameters "
                            f"({', '.join(f'{l}={v:.4g}' for l, v in zip(labels, sv[j]))}); the table does not "

@@ -25,9 +25,8 @@ from ._conductor_guess import conductor_guess, curve_readable
 from .diagnostics import diagnose
 from .lm import GRAM_BLOCK, _wide, column_groups, lm_fd
 from .losses import check_loss, prepare_targets, residuals_from_targets
+from .methods import DEFAULT_METHOD, METHODS, get_method
 from .params import Parametrization, check_solver_options
-
-METHODS = ("lm", "gn", "dogleg", "bfgs", "lbfgs", "jaxopt_lm", "lm_fd")
 
 
 class FitError(MatfitError):
@@ -53,6 +52,9 @@ class FitResult:
     warnings : diagnostics of the optimum (list of str; see :mod:`matfit.fitting.diagnostics`):
         not converged, not identifiable (those standard errors are ``inf``), at a bound,
         outliers, poor fit, multiple optima.  ``ok`` is ``converged and not warnings``.
+    info : notes on how the fit was computed (list of str), e.g. that a family has no
+        channel-split kernel and ``lm_fd`` solved it on ``(N, C)`` residuals, or that a large
+        table's starts were compared on its subset; not warnings.
     """
 
     family: str
@@ -75,6 +77,7 @@ class FitResult:
     model: object = field(repr=False)
     z: np.ndarray = field(repr=False, default=None)
     warnings: list = field(default_factory=list)
+    info: list = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
@@ -87,6 +90,7 @@ class FitResult:
         for lab, v, s in zip(self.labels, self.values, self.stderr):
             lines.append(f"  {lab:14s} = {v:.6g} +- {s:.2g}")
         lines += [f"  WARNING {w}" for w in self.warnings]
+        lines += [f"  note: {w}" for w in self.info]
         return "\n".join(lines)
 
 
@@ -108,7 +112,9 @@ def _prepared_residual_fn(par, loss, robust, scale):
         pred = par.model(z).eval(wo, wi)
         return residuals_from_targets(pred, target, factor, wi[..., 2], loss, robust, scale)
 
-    return prepare, fn
+    # jitted: a solver calls fn many times (trial step, Jacobian columns, extrapolation), and a
+    # jitted fn is traced once per argument shape instead of once per call site
+    return prepare, jax.jit(fn)
 
 
 def _split_residual_fn(par, loss, robust, scale):
@@ -141,7 +147,7 @@ def _split_residual_fn(par, loss, robust, scale):
                                    pairs.wi.z, loss, robust, scale)[:, 0]
             for c in range(target.shape[0]))
 
-    return prepare, fn
+    return prepare, jax.jit(fn)  # traced once per argument shape (see _prepared_residual_fn)
 
 
 def _objective_fn(prepare, fn):
@@ -181,31 +187,13 @@ def _by_channel(fn):
 
 
 def _solve_one(fn, method, z0, arrays, max_steps, rtol, atol, groups=None, wide=False, extrapolate=False):
-    import optimistix as optx
+    """One start solved by the registered ``method`` (:data:`matfit.fitting.methods.METHODS`)."""
+    return METHODS[method].solve(fn, z0, arrays, max_steps, rtol, atol, groups, wide, extrapolate)
 
-    if method == "lm_fd":
-        res = lm_fd(fn, z0, arrays, *groups, max_steps=max_steps, rtol=rtol, atol=atol, wide=wide,
-                    extrapolate=extrapolate)
-        return res.z, res.steps, res.converged, res
 
-    def obj(z, args):
-        r = fn(z, args)
-        return 0.5 * jnp.sum(r * r)
-
-    if method in ("lm", "gn", "dogleg"):
-        solver = {"lm": optx.LevenbergMarquardt, "gn": optx.GaussNewton, "dogleg": optx.Dogleg}[method](rtol=rtol, atol=atol)
-        sol = optx.least_squares(fn, solver, z0, args=arrays, max_steps=max_steps, throw=False)
-        return sol.value, sol.stats["num_steps"], sol.result == optx.RESULTS.successful, None
-    if method == "bfgs":
-        sol = optx.minimise(obj, optx.BFGS(rtol=rtol, atol=atol), z0, args=arrays, max_steps=max_steps, throw=False)
-        return sol.value, sol.stats["num_steps"], sol.result == optx.RESULTS.successful, None
-    import jaxopt
-
-    if method == "lbfgs":
-        res = jaxopt.LBFGS(fun=obj, maxiter=max_steps, tol=atol).run(z0, arrays)
-        return res.params, res.state.iter_num, res.state.error <= atol, None
-    res = jaxopt.LevenbergMarquardt(residual_fun=fn, maxiter=max_steps, xtol=rtol, gtol=atol).run(z0, arrays)
-    return res.params, res.state.iter_num, res.state.error <= atol, None
+def _half_sq(r):
+    """``0.5 |r|^2`` of residuals in any of the layouts (one array, or one per channel)."""
+    return 0.5 * sum(jnp.sum(x * x) for x in (r if isinstance(r, (tuple, list)) else (r,)))
 
 
 #: Rows of the subsample a large table's ``lm_fd`` fit is first solved on (see :func:`_solver`).
@@ -228,21 +216,24 @@ def _solver(family, channels, fixed_items, tied, method, loss, robust, scale, ma
 
     Returns ``(par, run, run_full, objective)``. ``run(z0s, arrays) -> (z, objective, steps,
     converged)`` for a stack of starts; ``run_full`` also returns the best start's index, its
-    residuals (flat) and ``J^T J`` (summed in float64 when x64 is on), for covariances.
+    residuals (flat), ``J^T J`` (summed in float64 when x64 is on) and, for a large table, the
+    starts' objectives and solutions on its subset (else those of the whole table), for
+    covariances and diagnostics.
 
     ``split``: ``lm_fd`` solves on channel-split residuals (:func:`_split_residual_fn`) when the
     family's model supports them; single fits only (batched fits vmap the ``(N, C)`` form).
     ``lm_fd`` on a table of at least ``4 * COARSE_ROWS`` rows (a full MERL table) first solves
-    on a fixed random subset of :data:`COARSE_ROWS` rows and starts the full solve where that one
-    ended: the subsample's iterations cost ~1/30 of a MERL table's, and from there the full
-    solve takes a few (on a MERL conductor table 1-5 instead of 15-25), to the same stopping
-    tests (``docs/performance.md``). Several starts on such a table are solved one after another
-    (``lax.map``), not under ``vmap``, where each would iterate until the slowest converged: a
-    4-start float32 fit of a MERL conductor table 4.4 -> 2.95 s, same minimum."""
+    every start on a fixed random subset of :data:`COARSE_ROWS` rows, one start after another
+    (``lax.map``: under ``vmap`` every start would iterate until the slowest converged), and
+    then solves the whole table from the best of them only: the subsample's iterations cost a
+    small fraction of the whole table's, and from there the full solve takes a few, to the same
+    stopping tests. The other starts' objectives on the whole table are evaluated at their
+    subset solutions, so several starts cost little more than one."""
     par = Parametrization(family, channels, dict(fixed_items), tied)
     prepare, fn = _prepared_residual_fn(par, loss, robust, scale)  # fn: (N, C) residuals
     flat = lambda z, a: fn(z, a).reshape(-1)  # noqa: E731  (the optimistix and jaxopt solvers)
-    solve_prepare, solve_fn = prepare, (fn if method == "lm_fd" else flat)
+    channelled = METHODS[method].residuals == "channels"
+    solve_prepare, solve_fn = prepare, (fn if channelled else flat)
     split = split and method == "lm_fd" and supports_soa(par.model(jnp.zeros(par.size)))
     if split:
         solve_prepare, solve_fn = _split_residual_fn(par, loss, robust, scale)
@@ -250,45 +241,51 @@ def _solver(family, channels, fixed_items, tied, method, loss, robust, scale, ma
     objective = _objective_fn(prepare, fn)
 
     def solve_all(z0s, arrays, wide=False):
+        """``(prepared, z, obj, steps, ok, best, res, sub)``: every start's solution, objective on
+        the whole table, steps and convergence; the best start's index and, for ``lm_fd``, its
+        :class:`~matfit.fitting.lm.LMResult` (else None); ``sub`` the starts' subset objectives
+        and solutions of a large table (else None)."""
         prepared = solve_prepare(arrays)  # once, outside the solver's loop
         sub = _coarse_rows(arrays) if method == "lm_fd" else None
-        coarse = None if sub is None else solve_prepare(sub)
-
-        def solve(z0):
-            if coarse is not None:
-                z0 = lm_fd(solve_fn, z0, coarse, *groups, max_steps=max_steps, rtol=rtol, atol=atol).z
-            # a large table's full solve also tries the line minimum after steps that beat the
-            # model (lm._extrapolated: full MERL plastic 10 -> 4 full-table iterations)
-            return _solve_one(solve_fn, method, z0, prepared, max_steps, rtol, atol, groups, wide,
-                              extrapolate=coarse is not None)
-
+        if sub is not None:
+            coarse = solve_prepare(sub)
+            cz, cF, csteps, cok = jax.lax.map(
+                lambda z0: lm_fd(solve_fn, z0, coarse, *groups, max_steps=max_steps, rtol=rtol, atol=atol)[:4], z0s)
+            good = jnp.isfinite(cF) & jnp.all(jnp.isfinite(cz), axis=1)
+            best = jnp.argmin(jnp.where(good, cF, jnp.inf))
+            # the whole table from the best subset solution; the line minimum after steps that
+            # beat the model (lm._extrapolated) saves full-table iterations of large-residual fits
+            zb, steps, ok, res = _solve_one(solve_fn, method, cz[best], prepared, max_steps, rtol, atol, groups, wide,
+                                            extrapolate=True)
+            others = jax.lax.map(lambda z: _half_sq(solve_fn(z, prepared)), cz) if z0s.shape[0] > 1 else res.F[None]
+            z = cz.at[best].set(zb)
+            obj = others.at[best].set(res.F)
+            return prepared, z, obj, csteps.at[best].set(steps), cok.at[best].set(ok), best, res, (cF, cz)
         if z0s.shape[0] == 1:  # one start: no vmap, which would batch the model's loops
-            z, steps, ok, res = jax.tree_util.tree_map(lambda x: x[None], solve(z0s[0]))
-        elif coarse is not None:
-            # a large table: one start after another. Under vmap every start would iterate until
-            # the slowest converged, and lm._extrapolated's cond would run both branches
-            z, steps, ok, res = jax.lax.map(solve, z0s)
+            z, steps, ok, res = jax.tree_util.tree_map(
+                lambda x: x[None], _solve_one(solve_fn, method, z0s[0], prepared, max_steps, rtol, atol, groups, wide))
         else:
-            z, steps, ok, res = jax.vmap(solve)(z0s)
+            z, steps, ok, res = jax.vmap(
+                lambda z0: _solve_one(solve_fn, method, z0, prepared, max_steps, rtol, atol, groups, wide))(z0s)
         obj = res.F if method == "lm_fd" else objective(z, arrays)  # lm_fd: 0.5 |r|^2 at z, known
-        return prepared, z, obj, steps, ok, res
+        good = jnp.isfinite(obj) & jnp.all(jnp.isfinite(z), axis=1)
+        best = jnp.argmin(jnp.where(good, obj, jnp.inf))
+        res = None if res is None else jax.tree_util.tree_map(lambda x: x[best], res)
+        return prepared, z, obj, steps, ok, best, res, None
 
     def run(z0s, arrays):
         return solve_all(z0s, arrays)[1:5]
 
     def run_full(z0s, arrays):
         # lm_fd sums its moments in float64 (x64 on) for the J^T J returned with the solution
-        prepared, z, obj, steps, ok, res = solve_all(z0s, arrays, wide=True)
-        good = jnp.isfinite(obj) & jnp.all(jnp.isfinite(z), axis=1)
-        best = jnp.argmin(jnp.where(good, obj, jnp.inf))
+        prepared, z, obj, steps, ok, best, res, sub = solve_all(z0s, arrays, wide=True)
         zb = z[best]
         n = arrays[0].shape[0]
         if method != "lm_fd":
             J = _wide(jax.jacfwd(flat)(zb, prepared))  # float64 only when x64 is on (no truncation warning)
-            return z, obj, steps, ok, best, flat(zb, prepared), J.T @ J
-        r, A = jax.tree_util.tree_map(lambda x: x[best], (res.r, res.A))
-        r = jnp.stack(r, axis=-1) if split else r
-        return z, obj, steps, ok, best, r[:n].reshape(-1), A
+            return z, obj, steps, ok, best, flat(zb, prepared), J.T @ J, sub
+        r = jnp.stack(res.r, axis=-1) if split else res.r
+        return z, obj, steps, ok, best, r[:n].reshape(-1), res.A, sub
 
     return par, jax.jit(run), jax.jit(run_full), jax.jit(objective)
 
@@ -426,9 +423,9 @@ def _candidates(par, base, n_extra, seed):
     u = rng.uniform(0.02, 0.98, (K // 2, par.size))
     bounded = np.isfinite(par.lower_upper()[1])
     spread = np.where(bounded, np.log(u) - np.log1p(-u), rng.normal(0, 1.0, u.shape))
-    base = jnp.asarray(base)
-    return jnp.concatenate([base[:, None, :] + jnp.asarray(local, base.dtype)[None],
-                            jnp.broadcast_to(jnp.asarray(spread, base.dtype), (base.shape[0],) + spread.shape)], axis=1)
+    base = np.asarray(base)
+    return np.concatenate([base[:, None, :] + local.astype(base.dtype)[None],
+                           np.broadcast_to(spread.astype(base.dtype), (base.shape[0],) + spread.shape)], axis=1)
 
 
 def fit_starts(table, par, n, seed, objective, arrays, init=None):
@@ -438,7 +435,8 @@ def fit_starts(table, par, n, seed, objective, arrays, init=None):
     g = initial_guess(table, par)
     if init is not None:
         g.update(init)
-    return _screened_starts(objective, par, par.z_from_theta(g).astype(arrays[0].dtype)[None], n, seed, arrays)[0]
+    base = np.asarray(_compiled(par)["z_from_theta"](g)).astype(arrays[0].dtype)[None]
+    return _screened_starts(objective, par, base, n, seed, arrays)[0]
 
 
 def _screened_starts(objective, par, base, n, seed, arrays, batched=False):
@@ -446,18 +444,33 @@ def _screened_starts(objective, par, base, n, seed, arrays, batched=False):
     candidates of :func:`_candidates` with the lowest objective on the table (one vectorized
     evaluation of the fit's own objective; multi-start without the cost of ``n`` full solves
     from blind perturbations, which for layered and metal families mostly end at a bound)."""
-    base = jnp.asarray(base)
+    base = np.asarray(base)
     if n <= 1:
-        return base[:, None, :]
-    cand = _candidates(par, base, n - 1, seed)
+        return jnp.asarray(base[:, None, :])
+    cand = _candidates(par, base, n - 1, seed)  # numpy: no eager JAX operations to dispatch
     if batched:
-        (c, a), nb = shard_batch((cand, arrays))
-        obj = batched_run(objective)(c, a)[:nb]
+        (c, a), nb = shard_batch((jnp.asarray(cand), arrays))
+        obj = np.asarray(batched_run(objective)(c, a)[:nb])
     else:
-        obj = objective(cand[0], arrays)[None]
-    obj = jnp.where(jnp.isfinite(obj), obj, jnp.inf)
-    best = jnp.argsort(obj, axis=1)[:, : n - 1]
-    return jnp.concatenate([base[:, None, :], jnp.take_along_axis(cand, best[:, :, None], axis=1)], axis=1)
+        obj = np.asarray(objective(jnp.asarray(cand[0]), arrays))[None]
+    obj = np.where(np.isfinite(obj), obj, np.inf)
+    best = np.argsort(obj, axis=1, kind="stable")[:, : n - 1]
+    return jnp.asarray(np.concatenate([base[:, None, :], np.take_along_axis(cand, best[:, :, None], axis=1)], axis=1))
+
+
+@functools.lru_cache(maxsize=64)
+def _compiled(par):
+    """Jitted helpers of a (cached) :class:`Parametrization`: ``z_from_theta`` and ``post(zb, z,
+    zs)`` -> the natural values of ``zb``, the diagonal of their Jacobian in ``z``, the natural
+    values of the starts ``z`` and ``zs``, every parameter's value and the model at ``zb``. One
+    compiled call each, instead of dozens of small eagerly dispatched operations per fit."""
+
+    def post(zb, z, zs):
+        return {"values": par.theta_vector(zb), "dtheta": jnp.diag(jax.jacfwd(par.theta_vector)(zb)),
+                "starts": par.theta_vector(z), "sub_starts": par.theta_vector(zs),
+                "theta": par.full(par.theta(zb)), "model": par.model(zb)}
+
+    return {"z_from_theta": jax.jit(par.z_from_theta), "post": jax.jit(post)}
 
 
 def _table_arrays(table, dtype):
@@ -465,7 +478,7 @@ def _table_arrays(table, dtype):
     return (a.wo, a.wi, a.values, a.weight)
 
 
-def fit(table, model="plastic", method="lm", loss="l2", robust=None, robust_scale=1.0, fixed=None, tied=(),
+def fit(table, model="plastic", method=DEFAULT_METHOD, loss="l2", robust=None, robust_scale=1.0, fixed=None, tied=(),
         starts=4, init=None, max_steps=256, rtol=1e-8, atol=1e-10, seed=0, dtype=None) -> FitResult:
     """Fit a model family to a table by nonlinear least squares.
 
@@ -475,11 +488,12 @@ def fit(table, model="plastic", method="lm", loss="l2", robust=None, robust_scal
     model : str
         Family name: ``"lambert"``, ``"conductor"``, ``"conductor_beckmann"``, ``"dielectric"``,
         ``"plastic"``, ``"car_paint"`` (see :data:`matfit.fitting.FAMILIES`).
-    method : {"lm", "gn", "dogleg", "bfgs", "lbfgs", "jaxopt_lm", "lm_fd"}
-        optimistix Levenberg-Marquardt, Gauss-Newton, Dogleg or BFGS; jaxopt LBFGS or
-        Levenberg-Marquardt; ``"lm_fd"``: Levenberg-Marquardt on the normal equations with a
-        grouped finite-difference Jacobian (:mod:`matfit.fitting.lm`), the fastest on large
-        tables (a full MERL table) and for batched fits.
+    method : str
+        A method of :data:`matfit.fitting.methods.METHODS`. Default ``"lm_fd"``:
+        Levenberg-Marquardt on the normal equations with a grouped finite-difference Jacobian
+        (:mod:`matfit.fitting.lm`), the fastest on every table size and bounded in memory;
+        ``"lm"``, ``"gn"``, ``"dogleg"``, ``"bfgs"`` (optimistix), ``"lbfgs"``, ``"jaxopt_lm"``
+        (jaxopt).
     loss, robust, robust_scale : see :mod:`matfit.fitting.losses`.
     fixed : dict, optional
         Parameters held at given values.  tied : per-channel parameters shared by all channels.
@@ -510,8 +524,7 @@ def fit(table, model="plastic", method="lm", loss="l2", robust=None, robust_scal
     t0 = time.perf_counter()
     if not isinstance(table, Table):
         raise ParameterError(f"fit: table must be a matfit.Table, got {type(table).__name__}")
-    if method not in METHODS:
-        raise ParameterError(f"fit: method must be one of {list(METHODS)}, got {method!r}")
+    get_method(method, "fit", model, loss)
     check_loss(loss, robust)
     check_solver_options("fit", starts=starts, max_steps=max_steps, rtol=rtol, atol=atol, robust_scale=robust_scale,
                          dtype=dtype)
@@ -529,7 +542,7 @@ def fit(table, model="plastic", method="lm", loss="l2", robust=None, robust_scal
     rows = _split_rows(arrays)
     z0s = fit_starts(table, par, starts, seed, objective, rows, init)
     # the best start's residuals and J^T J come with the solution (Gauss-Newton covariance below)
-    z, obj, steps, ok, best, r_best, A = run_full(z0s, rows)
+    z, obj, steps, ok, best, r_best, A, sub = run_full(z0s, rows)
     obj = np.asarray(obj)
     good = np.isfinite(obj) & np.all(np.isfinite(np.asarray(z)), axis=1)
     if not good.any():
@@ -539,7 +552,8 @@ def fit(table, model="plastic", method="lm", loss="l2", robust=None, robust_scal
     # Uncertainty: Gauss-Newton covariance in the natural parameters (chain rule through the
     # element-wise transform), scaled by the residual variance unless the table carries sigma.
     r_best = np.asarray(r_best)[:n_rows]
-    dtheta = np.asarray(jax.jacfwd(par.theta_vector)(zb)).diagonal()
+    post = _compiled(par)["post"](zb, z, zb if sub is None else sub[1])
+    dtheta = np.asarray(post["dtheta"])
     inv_d = 1 / np.where(dtheta != 0, dtheta, np.inf)
     At = np.asarray(A, float) * np.outer(inv_d, inv_d)  # J^T J in the natural parameters
     rss = float(2 * obj[best])
@@ -547,30 +561,40 @@ def fit(table, model="plastic", method="lm", loss="l2", robust=None, robust_scal
     s2 = 1.0 if (table.sigma is not None and loss == "l2" and robust is None) else rss / max(dof, 1)
     cov = s2 * np.linalg.pinv(At)
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
-    values = np.asarray(par.theta_vector(zb))
+    values = np.asarray(post["values"])
     lower, upper = par.lower_upper()
     sw = np.sqrt(np.asarray(arrays[3], float))
     data_scale = float(np.sqrt(np.mean((sw * np.asarray(arrays[2], float)) ** 2)))
+    info = []
+    if method == "lm_fd" and device_count() == 1 and not supports_soa(post["model"]):
+        info.append(f"lm_fd: the {model!r} family's model has no channel-split kernel; solved on (N, C) residuals")
+    start_kw = dict(start_values=np.asarray(post["starts"]), start_objectives=obj)
+    if sub is not None:  # a large table: the starts are compared where they ended on its subset
+        sub_values = np.asarray(post["sub_starts"])
+        start_kw = dict(start_values=sub_values, start_objectives=np.asarray(sub[0]), start_reference=sub_values[best],
+                        start_stderr=se * np.sqrt(n_rows / (COARSE_ROWS * C)))
+        info.append(f"the {len(table)}-row table was first solved on a random {COARSE_ROWS}-row subset from "
+                    f"{starts} start(s); the whole table from the best of them")
     notes, unident = diagnose(
         labels=par.labels, values=values, stderr=se, lower=lower, upper=upper, gram=At, residuals=r_best,
         converged=bool(np.asarray(ok)[best]), steps=int(np.asarray(steps)[best]), max_steps=int(max_steps),
         known_sigma=table.sigma is not None and loss == "l2" and robust is None, dof=n_res - par.size,
-        data_scale=data_scale, start_values=np.asarray(par.theta_vector(z)), start_objectives=obj, best=best)
+        data_scale=data_scale, best=best, **start_kw)
     se = np.where(np.isin(par.labels, unident), np.inf, se)
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(se, se)
-    theta = par.full(par.theta(zb))
+    theta = post["theta"]
     return FitResult(
         family=model, method=method, loss=loss,
         params={k: np.asarray(v) for k, v in theta.items()},
         labels=par.labels, values=values, stderr=se, cov=cov, corr=corr,
         objective=float(obj[best]), rss=rss, n_residuals=n_res, dof=dof, steps=int(np.asarray(steps)[best]),
         converged=bool(np.asarray(ok)[best]), wall_time=time.perf_counter() - t0, start_objectives=obj,
-        model=par.model(zb), z=np.asarray(zb), warnings=notes,
+        model=post["model"], z=np.asarray(zb), warnings=notes, info=info,
     )
 
 
-def fit_batch(tables, model="plastic", method="lm", loss="l2", fixed=None, tied=(), starts=1, max_steps=128,
+def fit_batch(tables, model="plastic", method=DEFAULT_METHOD, loss="l2", fixed=None, tied=(), starts=1, max_steps=128,
               rtol=1e-8, atol=1e-10, dtype=None):
     """Fit many tables of the same shape and directions in one vectorized call (e.g. texels).
 
@@ -584,8 +608,9 @@ def fit_batch(tables, model="plastic", method="lm", loss="l2", fixed=None, tied=
     for i, t in enumerate(tables):
         if not isinstance(t, Table):
             raise ParameterError(f"fit_batch: table {i} must be a matfit.Table, got {type(t).__name__}")
-    if method not in METHODS:
-        raise ParameterError(f"fit_batch: method must be one of {list(METHODS)}, got {method!r}")
+    if not get_method(method, "fit_batch", model, loss).batched:
+        raise ParameterError(f"fit_batch: method {method!r} cannot fit tables in a batch; use one of "
+                             f"{[k for k, v in METHODS.items() if v.batched]}")
     check_loss(loss, None)
     check_solver_options("fit_batch", starts=starts, max_steps=max_steps, rtol=rtol, atol=atol, dtype=dtype)
     t0 = tables[0]
