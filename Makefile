@@ -3,7 +3,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test install bench clean
+.PHONY: demo test check install bench clean
 
 $(PY):
 	$(PYTHON) -m venv $(VENV) || python3 -m venv $(VENV)
@@ -23,6 +23,12 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m pytest -q tests matfit --doctest-modules
+
+# The quick tier while working (a few minutes): the tests marked `check` (tests/conftest.py
+# CHECK_TIER, one or a few per test file) and the library's doctests.
+check: $(STAMP)
+	$(PY) -m pytest -q -m check tests
+	$(PY) -m pytest -q matfit --doctest-modules
 
 bench: $(STAMP)
 	$(PY) benchmarks/run_all.py

@@ -256,7 +256,7 @@ def directions(R, n, kind, seed=0):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--n", type=int, default=1_000_000)
+    ap.add_argument("--n", type=int, default=2**20)
     ap.add_argument("--repeat", type=int, default=7)
     ap.add_argument("--models", default="all", help="comma-separated names, or 'all'")
     ap.add_argument("--devices", type=int, default=1,
@@ -331,7 +331,14 @@ def main(argv=None):
             compile_s["mitsuba"] = time.perf_counter() - t0
         stats = interleaved(fns, repeat=args.repeat)
         row = {"model": name, "n": n, "n_numpy": n_np if np_fn is not None else None, "note": note,
-               "soa_path": "soa" if supports_soa(make(jnp.float64)) else "fallback"}
+               "soa_path": "soa" if supports_soa(make(jnp.float64)) else "fallback",
+               "calls": {"eval_f32": "jax.jit(lambda m, wo, wi: m.eval(wo, wi))(model, wo, wi); wo, wi (N, 3) float32 "
+                                     "(the default call)",
+                         "eval_f64": "the same in float64",
+                         "soa_f32": "matfit.fast.eval_soa(model, pairs), pairs = soa_pairs(wo, wi) prepared once "
+                                    "(tuned: a fit's cached pairs)",
+                         "numpy": "the numpy reference (tests/reference.py or this file), float64",
+                         "mitsuba": "mi.load_dict(d).eval(ctx, si, wi) (llvm_ad_rgb; best of plain and drjit.freeze)"}}
         for k, s in stats.items():
             nn = n_np if k.startswith("numpy") else n
             row[f"{k}_Mps"] = rate(nn, s)
@@ -371,12 +378,14 @@ def main(argv=None):
 
     print(f"\nN = {args.n} pairs, median of {args.repeat} interleaved repeats; M evaluations/s "
           f"({time.time() - t_start:.0f} s total)")
+    print("eval: jax.jit(model.eval) on (N, 3) arrays, the default call; soa: eval_soa on pairs prepared once (tuned)")
     print_table(rows, [
         ("model", "model", "s"), ("numpy_Mps", "numpy", ".2f"), ("eval_f32_Mps", "eval f32", ".1f"),
-        ("soa_f32_Mps", "soa f32", ".1f"), ("eval_f64_Mps", "eval f64", ".1f"), ("soa_f64_Mps", "soa f64", ".1f"),
-        ("mitsuba_peer_Mps", "mitsuba", ".1f"), ("soa_f32_vs_numpy", "soa32/np", ".0f"),
-        ("soa_f32_vs_mitsuba", "soa32/mi", ".2f"), ("soa_f32_spread", "spread", ".2f"),
-        ("err_f32_vs_f64", "f32 err", ".1e"), ("err_mitsuba_vs_f64", "mi diff", ".1e"),
+        ("soa_f32_Mps", "soa f32", ".1f"), ("eval_f64_Mps", "eval f64", ".1f"),
+        ("mitsuba_peer_Mps", "mitsuba", ".1f"), ("eval_f32_vs_numpy", "eval32/np", ".0f"),
+        ("eval_f32_vs_mitsuba", "eval32/mi", ".2f"), ("soa_f32_vs_mitsuba", "soa32/mi", ".2f"),
+        ("eval_f32_spread", "spread", ".2f"), ("err_eval_f32_vs_f64", "f32 err", ".1e"),
+        ("err_mitsuba_vs_f64", "mi diff", ".1e"),
     ])
     p = write_json("bench_eval", rows, args=vars(args),
                    extra={"mitsuba": mit_note, "load_start": load_start, "load_after": machine_info()["uptime"],

@@ -1,8 +1,55 @@
 import zlib
+from pathlib import Path
 
 import jax
 import numpy as np
 import pytest
+
+#: The ``make check`` tier: per test file, the tests that run in it (every parametrization of
+#: each). One or a few quick tests per file, so that the tier touches every module of the
+#: library in a few minutes; ``make test`` runs everything.
+CHECK_TIER = {
+    "test_bad_input.py": ("test_albedo_method", "test_channel_counts_must_match"),
+    "test_compile_count.py": ("test_counter_sees_a_compilation", "test_jitted_eval_compiles_once"),
+    "test_conductor_guess.py": ("test_initial_guess_uses_fresnel_curve",),
+    "test_fast.py": ("test_channel_model_slices_per_channel_parameters_only", "test_eval_soa_matches_eval"),
+    "test_fit_lm_fd.py": ("test_lm_fd_reaches_scipy_loss",),
+    "test_fresnel.py": ("test_average_vs_quadrature", "test_dielectric_inside_vs_colour"),
+    "test_hard_cases.py": ("test_finite_values",),
+    "test_io_alta.py": ("test_minimal_cos_th", "test_pink_felt_slice"),
+    "test_io_errors.py": ("test_rgl_wrong_version", "test_fuzz_random_bytes_all_readers"),
+    "test_io_merl.py": ("test_lookup_reciprocal_and_horizon", "test_round_trip_bit_exact"),
+    "test_io_rgl.py": ("test_warp_sample_invert_consistent", "test_albedo_bounded"),
+    "test_layered.py": ("test_dtypes_finite", "test_energy_le_1"),
+    "test_lm_split.py": ("test_gram_equals_numpy", "test_split_residuals_equal_interleaved"),
+    "test_loss_history.py": ("test_bad_method",),
+    "test_losses.py": ("test_residuals_match_reference",),
+    "test_low2012.py": ("test_parse_published_fits", "test_published_D_is_unnormalized_beckmann"),
+    "test_mcmc.py": ("test_log_prob_matches_numpy",),
+    "test_reciprocity_gradients.py": ("test_rough_conductor_reciprocity",),
+    "test_reference_agreement.py": ("test_G2",),
+    "test_report_cli.py": ("test_cli_fit_npz_with_report",),
+    "test_sampling.py": ("test_smooth_dielectric",),
+    "test_stable_fits.py": ("test_black_table_flags_bound", "test_masked_rows_do_not_influence_the_fit"),
+    "test_starts.py": ("test_initial_guesses_batch_equals_one_by_one",),
+    "test_stochastic_layered.py": ("test_eval_matches_exact_analytic_smooth_coat",),
+    "test_synth.py": ("test_shipped_scenes_parse", "test_cli_synth_info_roundtrip"),
+    "test_table.py": ("test_as_jax",),
+}
+
+
+def pytest_configure(config):
+    # float64 is on for the whole session, switched once here (float32 tests pass float32
+    # arrays and parameters explicitly); no test module switches it at import
+    jax.config.update("jax_enable_x64", True)
+    config.addinivalue_line("markers", "check: the quick `make check` tier (see CHECK_TIER in tests/conftest.py)")
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        name = getattr(item, "originalname", None) or item.name.split("[")[0]
+        if name in CHECK_TIER.get(Path(str(item.fspath)).name, ()):
+            item.add_marker(pytest.mark.check)
 
 
 # --- dtype / rng fixtures (reference-agreement helper) -------------------------------------------

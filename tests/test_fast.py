@@ -32,6 +32,7 @@ def _models(dt):
         "beckmann_hc": RoughConductor(a(0.3), a(ETA), a(K), "beckmann", "height_correlated"),
         "blinn_phong": RoughConductor(a(0.3), a(ETA), a(K), "blinn_phong"),
         "plastic_smooth": Plastic(a([0.7, 0.1, 0.1]), 0.0, a(1.5)),
+        "plastic_rough": Plastic(a([0.7, 0.1, 0.1]), a(0.2), a(1.5)),
         "blend": Blend(Lambert(a([0.8, 0.5, 0.2])), RoughConductor(a(0.2), a(ETA), a(K)), a(0.3)),
         "dielectric (fallback)": RoughDielectric(a(0.2), a(1.5)),
         "coated (fallback)": CoatedConductor(a(0.2), a(ETA), a(K), 0.0, a(1.5)),
@@ -48,7 +49,8 @@ def _dirs(rng, n):
 
 # float32 only where the SoA kernels differ from the general path (the fallbacks call model.eval).
 CASES = [(n, np.float64) for n in _models(jnp.float32)] + [
-    (n, np.float32) for n in ("lambert", "ggx", "beckmann_hc", "beckmann_hc_aniso", "blinn_phong", "plastic_smooth", "blend")]
+    (n, np.float32) for n in ("lambert", "ggx", "beckmann_hc", "beckmann_hc_aniso", "blinn_phong", "plastic_smooth", "plastic_rough",
+                            "blend")]
 
 
 @pytest.mark.parametrize("name,dtype", CASES, ids=[f"{n}-{np.dtype(d).name}" for n, d in CASES])
@@ -72,7 +74,7 @@ def test_supports_soa_lists_the_structure_of_arrays_models():
     m = _models(jnp.float32)
     assert supports_soa(m["ggx"]) and supports_soa(m["blend"]) and supports_soa(m["plastic_smooth"])
     assert not supports_soa(m["dielectric (fallback)"]) and not supports_soa(m["coated (fallback)"])
-    assert not supports_soa(Plastic(0.5, alpha=0.1))  # a rough coat builds its table from (N, 3) arrays
+    assert supports_soa(m["plastic_rough"])  # a rough coat's lobe and table read the pairs too
 
 
 @pytest.mark.parametrize("kind", ["ggx", "beckmann", "blinn_phong"])

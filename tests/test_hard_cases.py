@@ -20,8 +20,6 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-jax.config.update("jax_enable_x64", True)
-
 from matfit.errors import ParameterError  # noqa: E402
 from matfit.models import (  # noqa: E402
     Blend,

@@ -12,8 +12,6 @@ import jax
 import numpy as np
 import pytest
 
-jax.config.update("jax_enable_x64", True)
-
 from data_synth.geometry import hemisphere  # noqa: E402
 from matfit import Table  # noqa: E402
 from matfit.errors import DataFormatError  # noqa: E402

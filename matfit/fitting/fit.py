@@ -9,6 +9,7 @@ start (starts are solved together, vectorized with ``vmap``).
 from __future__ import annotations
 
 import functools
+import os
 import time
 from dataclasses import dataclass, field
 
@@ -473,7 +474,64 @@ def _compiled(par):
     return {"z_from_theta": jax.jit(par.z_from_theta), "post": jax.jit(post)}
 
 
-def _table_arrays(table, dtype):
+#: Bytes of working memory a fit needs per table row and value, in units of the float size: the
+#: table's device copy, its structure-of-arrays layout and prepared targets, and per parameter
+#: group one difference column (``lm_fd`` keeps ``J`` compressed and streams ``J^T J``).
+_BYTES_PER_ROW = (16, 8, 2)  # (per row, per value, per value and parameter group)
+
+
+def available_memory():
+    """Bytes of memory the system can give this process now (``MemAvailable`` of
+    ``/proc/meminfo``, else the physical memory), or None when unknown."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def memory_estimate(rows, channels, groups, dtype=None):
+    """Estimated peak working memory (bytes) of :func:`fit` on a table of ``rows`` rows.
+
+    Examples
+    --------
+    >>> from matfit.fitting.fit import memory_estimate
+    >>> round(memory_estimate(1_458_000, 3, 3, "float32") / 2**20)  # a full MERL table, conductor
+    323
+    """
+    size = np.dtype(dtype or jnp.result_type(float)).itemsize
+    a, b, c = _BYTES_PER_ROW
+    return int(rows * size * (a + channels * (b + c * groups)))
+
+
+def check_memory(where, rows, channels, groups, dtype=None):
+    """Raise :class:`FitError` before allocating when a fit of ``rows`` rows would need more
+    memory than the system has available (row count, estimate and availability in the message)."""
+    need = memory_estimate(rows, channels, groups, dtype)
+    have = available_memory()
+    if have is not None and need > have:
+        raise FitError(f"{where}: a table of {rows} rows x {channels} channels needs about {need / 2**30:.1f} GiB "
+                       f"of working memory ({np.dtype(dtype or jnp.result_type(float)).name}), and "
+                       f"{have / 2**30:.1f} GiB are available; fit a subsample (Table.subsample or "
+                       "matfit fit --subsample N) or use a machine with more memory")
+
+
+def _table_arrays(table, dtype, used_only=False):
+    """``(wo, wi, values, weight)`` of a table as JAX arrays; ``used_only``: only the rows with a
+    nonzero weight in some channel (the others add nothing to any residual: a MERL table's
+    invalid cells, a quarter of its rows, cost neither memory nor time)."""
+    if used_only:
+        w = table.effective_weight()
+        keep = np.any(w > 0, axis=1)
+        if not keep.all():
+            f = (lambda x: jnp.asarray(x[keep], dtype=dtype)) if dtype is not None else (lambda x: jnp.asarray(x[keep]))
+            return (f(table.wo), f(table.wi), f(table.values), f(w))
     a = table.as_jax(dtype)
     return (a.wo, a.wi, a.values, a.weight)
 
@@ -537,10 +595,15 @@ def fit(table, model="plastic", method=DEFAULT_METHOD, loss="l2", robust=None, r
     if n_res <= par.size:
         raise FitError(f"fit: the table has {n_res} usable residuals for {par.size} free parameters "
                        f"({', '.join(par.labels)}): at least {par.size + 1} are needed")
-    arrays = _table_arrays(table, dtype)
+    check_memory("fit", int(np.count_nonzero(np.any(table.effective_weight() > 0, axis=1))), C,
+                 len(column_groups(par)[0]), dtype)
+    arrays = _table_arrays(table, dtype, used_only=True)
     n_rows = arrays[2].size
     rows = _split_rows(arrays)
-    z0s = fit_starts(table, par, starts, seed, objective, rows, init)
+    # a large table's candidate starts are screened on its subset (24 candidates on a full MERL
+    # table would otherwise evaluate 24 copies of its residuals at once)
+    screen = _coarse_rows(rows) if method == "lm_fd" else None
+    z0s = fit_starts(table, par, starts, seed, objective, rows if screen is None else screen, init)
     # the best start's residuals and J^T J come with the solution (Gauss-Newton covariance below)
     z, obj, steps, ok, best, r_best, A, sub = run_full(z0s, rows)
     obj = np.asarray(obj)
@@ -622,6 +685,7 @@ def fit_batch(tables, model="plastic", method=DEFAULT_METHOD, loss="l2", fixed=N
     par, run, _, objective = _solver(model, t0.n_channels, fixed_items, tuple(tied), method, loss, None, 1.0,
                           int(max_steps), float(rtol), float(atol))
     # Stacked on the host and moved once; the data-driven guesses are mapped to z in one call.
+    check_memory("fit_batch", len(tables) * len(t0), t0.n_channels, len(column_groups(par)[0]) * starts, dtype)
     stacked = tuple(jnp.asarray(np.stack(a), dtype=dtype) for a in zip(
         *((t.wo, t.wi, t.values, t.effective_weight()) for t in tables)))
     base = jax.vmap(par.z_from_theta)({k: jnp.asarray(v, float) for k, v in initial_guesses(tables, par).items()})

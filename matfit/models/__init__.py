@@ -2,6 +2,7 @@
 
 from ._base import AbstractBSDF
 from ._microfacet import AbstractMicrofacetBSDF
+from ._pairs import SoAPairs, half_vector, valid_reflection
 from .blend import Blend
 from .lambert import Lambert
 from .layered import CoatedConductor, Layered
@@ -15,6 +16,9 @@ from .stochastic_layered import StochasticLayered
 __all__ = [
     "AbstractBSDF",
     "AbstractMicrofacetBSDF",
+    "SoAPairs",
+    "half_vector",
+    "valid_reflection",
     "StochasticLayered",
     "Lambert",
     "Plastic",

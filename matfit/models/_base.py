@@ -37,6 +37,27 @@ class AbstractBSDF(eqx.Module):
     def eval(self, wo, wi):
         """BSDF value ``(..., C)`` for directions ``(..., 3)``."""
 
+    #: True for models whose :meth:`eval_pairs` evaluates prepared pairs channel by channel on
+    #: component arrays (the kernels of :mod:`matfit.fast`); others rebuild ``(N, 3)`` arrays.
+    pair_kernels: ClassVar[bool] = False
+
+    def eval_pairs(self, pairs):
+        """:meth:`eval` on prepared direction pairs (:class:`~matfit.models.SoAPairs`): the
+        quantities that depend only on the directions are taken from ``pairs`` instead of being
+        derived again. The default rebuilds the ``(..., 3)`` arrays and calls :meth:`eval`;
+        models with :attr:`pair_kernels` override it, and their :meth:`eval` is
+        ``eval_pairs(SoAPairs.of(wo, wi))``.
+
+        Examples
+        --------
+        >>> import jax.numpy as jnp
+        >>> from matfit.models import Lambert, SoAPairs
+        >>> up = jnp.array([[0.0, 0.0, 1.0]])
+        >>> Lambert(0.5).eval_pairs(SoAPairs.of(up, up)).shape
+        (1, 1)
+        """
+        return self.eval(pairs.wo.to_array(), pairs.wi.to_array())
+
     @abc.abstractmethod
     def pdf(self, wo, wi):
         """Solid-angle density ``(...)`` of sampling ``wi`` given ``wo``."""

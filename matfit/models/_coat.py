@@ -53,6 +53,14 @@ def coat_reflection(coat, wo, wi):
     return jnp.where(refl, coat.eval(wo, wi)[..., 0], 0)
 
 
+def coat_reflection_pairs(coat, pairs):
+    """:func:`coat_reflection` of a rough coat on prepared pairs (:class:`~matfit.models.SoAPairs`):
+    the lobe ``D G2 / (4 cos cos)`` times the dielectric Fresnel at ``wo . h``; 0 where the pair
+    is invalid or the coat is index-matched (it then reflects nothing)."""
+    F = fresnel_dielectric(pairs.cos_d, coat.eta)
+    return jnp.where(coat._passthrough(), 0, coat.reflection_lobe(pairs) * F)
+
+
 def _gl01(n, dtype):
     x, w = np.polynomial.legendre.leggauss(n)
     return jnp.asarray(0.5 * (x + 1), dtype), jnp.asarray(0.5 * w, dtype)

@@ -19,6 +19,7 @@ import jax.numpy as jnp
 
 from .._math import safe_div
 from ._base import AbstractBSDF
+from ._pairs import SoAPairs
 from ._params import as_param, check_channels, check_directions, check_range, check_u
 from ..errors import ParameterError
 
@@ -62,9 +63,18 @@ class Blend(AbstractBSDF):
     def has_delta_lobe(self):
         return self.a.has_delta_lobe or self.b.has_delta_lobe
 
+    @property
+    def pair_kernels(self):
+        return self.a.pair_kernels and self.b.pair_kernels
+
     def eval(self, wo, wi):
         check_directions("Blend.eval", wo=wo, wi=wi)
+        if self.pair_kernels:  # both parts read the pairs derived once
+            return self.eval_pairs(SoAPairs.of(wo, wi))
         return self.mix(self.a.eval(wo, wi), self.b.eval(wo, wi))
+
+    def eval_pairs(self, pairs):
+        return self.mix(self.a.eval_pairs(pairs), self.b.eval_pairs(pairs))
 
     def mix(self, fa, fb):
         """``(1 - weight) fa + weight fb`` for values ``fa``, ``fb`` (..., C) of the two parts."""

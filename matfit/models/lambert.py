@@ -23,6 +23,7 @@ import jax.numpy as jnp
 
 from .._math import COS_EPS, cosine_hemisphere
 from ._base import AbstractBSDF
+from ._pairs import valid_reflection
 from ._params import as_channels, check_directions, check_range, check_u
 
 
@@ -49,9 +50,16 @@ class Lambert(AbstractBSDF):
     def channels(self):
         return self.reflectance.shape[-1]
 
+    pair_kernels = True
+
     def eval(self, wo, wi):
         check_directions("Lambert.eval", wo=wo, wi=wi)
-        ok = (wo[..., 2] > COS_EPS) & (wi[..., 2] > COS_EPS)
+        return self._value(valid_reflection(wo, wi))
+
+    def eval_pairs(self, pairs):
+        return self._value(pairs.iso[0])
+
+    def _value(self, ok):
         return jnp.where(ok[..., None], self.reflectance / jnp.pi, 0)
 
     def pdf(self, wo, wi):

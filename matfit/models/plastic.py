@@ -42,8 +42,9 @@ import jax.numpy as jnp
 
 from .._math import COS_EPS, cosine_hemisphere, safe_div, where_up
 from ._coated import AbstractCoatedBSDF
-from ._coat import coat_internal_reflectance, coat_reflection, coat_transmittance, is_smooth, make_coat
+from ._coat import coat_internal_reflectance, coat_reflection_pairs, coat_transmittance, is_smooth, make_coat
 from ._params import as_channels, check_directions, check_range, check_u
+from ._pairs import SoAPairs
 from .lambert import Lambert
 
 
@@ -79,9 +80,11 @@ class Plastic(AbstractCoatedBSDF):
     def eta(self):
         return self.coat.eta
 
-    def _diffuse(self, wo, wi, table):
-        To = coat_transmittance(self.coat, wo[..., 2], table)
-        Ti = coat_transmittance(self.coat, wi[..., 2], table)
+    pair_kernels = True
+
+    def _diffuse(self, cos_o, cos_i, table):
+        To = coat_transmittance(self.coat, cos_o, table)
+        Ti = coat_transmittance(self.coat, cos_i, table)
         scale = (To * Ti)[..., None] * self.reflectance / jnp.pi
         if self.internal_reflection:
             r_int = coat_internal_reflectance(self.coat, table)
@@ -90,14 +93,21 @@ class Plastic(AbstractCoatedBSDF):
 
     def eval(self, wo, wi):
         check_directions("Plastic.eval", wo=wo, wi=wi)
-        return self._eval_t(wo, wi, self._table())
+        return self.eval_pairs(SoAPairs.of(wo, wi))
+
+    def eval_pairs(self, pairs):
+        return self._eval_p(pairs, self._table())
 
     def _eval_t(self, wo, wi, table):
-        ok = (wo[..., 2] > COS_EPS) & (wi[..., 2] > COS_EPS)
-        # double where: pairs at or below the horizon are evaluated at the normal (finite gradients
-        # for directions a denormal above it)
-        wo, wi = where_up(ok, wo), where_up(ok, wi)
-        f = coat_reflection(self.coat, wo, wi)[..., None] + self._diffuse(wo, wi, table)
+        return self._eval_p(SoAPairs.of(wo, wi), table)
+
+    def _eval_p(self, pairs, table):
+        # the pairs' cosines are already mapped to the normal where a pair is invalid (double
+        # where: finite gradients for directions a denormal above the horizon)
+        ok, cos_o, cos_i = pairs.iso[:3]
+        f = self._diffuse(cos_o, cos_i, table)
+        if not is_smooth(self.coat):
+            f = f + coat_reflection_pairs(self.coat, pairs)[..., None]
         return jnp.where(ok[..., None], f, 0)
 
     def _p_coat(self, wo, table):

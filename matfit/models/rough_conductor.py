@@ -30,9 +30,10 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._math import COS_EPS, dot, normalize, safe_div, where_up
-from ..fresnel import FresnelAngle, fresnel_conductor
+from .._math import safe_div
+from ..fresnel import fresnel_conductor
 from ._microfacet import AbstractMicrofacetBSDF
+from ._pairs import SoAPairs, valid_reflection
 from ._params import as_channels, check_channels, check_directions, check_range, check_u
 
 
@@ -64,47 +65,21 @@ class RoughConductor(AbstractMicrofacetBSDF):
     def channels(self):
         return jnp.broadcast_shapes(self.eta.shape, self.k.shape)[-1]
 
+    pair_kernels = True
+
     @staticmethod
     def valid_pair(wo, wi):
         """Where the lobe is defined: ``wo`` and ``wi`` above the surface (``cos > COS_EPS``)."""
-        return (wo[..., 2] > COS_EPS) & (wi[..., 2] > COS_EPS)
+        return valid_reflection(wo, wi)
 
     def eval(self, wo, wi):
         check_directions("RoughConductor.eval", wo=wo, wi=wi)
-        h = normalize(wo + wi)
-        return self.eval_half(wo, wi, h, dot(wo, h))
+        return self.eval_pairs(SoAPairs.of(wo, wi))
 
-    def eval_half(self, wo, wi, h, cos_d, ok=None):
-        """:meth:`eval` with the half vector ``h = normalize(wo + wi)`` and ``cos_d = wo . h`` given.
-
-        Both depend only on the directions: :mod:`matfit.fast` computes them once for many
-        evaluations. ``wo, wi, h`` may be ``(..., 3)`` arrays or :class:`matfit._math.Vec3`;
-        ``cos_d`` an array or its :class:`~matfit.fresnel.FresnelAngle` terms. ``ok``, when
-        given, is :meth:`valid_pair` of the directions, which the caller has already mapped to
-        the normal where it is False (:meth:`matfit.fast.SoAPairs.isotropic`).
-        """
-        d = self.dist()
-        guarded = ok is not None
-        if not guarded:
-            ok = self.valid_pair(wo, wi)
-            # double where: invalid pairs (at or below the horizon) are evaluated at the normal
-            wo, wi, h = where_up(ok, wo), where_up(ok, wi), where_up(ok, h)
-        # D G2 as one quotient, 0 on invalid pairs through its denominator (inf there): XLA
-        # computes it in one loop of its own (a guard outside a division would be recomputed in
-        # every loop that reads it), and F is guarded by spec alone, so a kernel per channel
-        # reads only spec and cos_d, not the directions again (matfit.fast). 1 / (4 cos cos)
-        # stays a factor of its own: inside the quotient, float32 gradients overflow near
-        # grazing at alpha = ALPHA_MIN (den^-2 < 1e-38).
-        num, den, visible = d.reflection_ratio(wo, wi, h, self.masking)
-        # Both directions above the surface make their half vector visible from each (wo . h =
-        # |wo + wi| / 2 > 0): a caller's own ok needs no check of it repeated per parameter.
-        dg = num / jnp.where(ok if guarded else ok & visible, den, jnp.inf)
-        spec = dg / jnp.where(ok, 4 * wo[..., 2] * wi[..., 2], jnp.inf)
-        if isinstance(cos_d, FresnelAngle):  # precomputed, finite and in range by construction
-            F = fresnel_conductor(cos_d.expand(), self.eta, self.k)
-        else:
-            F = fresnel_conductor(jnp.where(spec > 0, cos_d, 1)[..., None], self.eta, self.k)
-        return spec[..., None] * F
+    def eval_pairs(self, pairs):
+        # D G2 / (4 cos cos) is one loop over the pairs; F, per channel, reads it and cos_d only
+        spec = self.reflection_lobe(pairs)
+        return spec[..., None] * fresnel_conductor(pairs.fresnel_angle().expand(), self.eta, self.k)
 
     def pdf(self, wo, wi):
         check_directions("RoughConductor.pdf", wo=wo, wi=wi)
