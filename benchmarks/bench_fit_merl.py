@@ -78,10 +78,23 @@ def run_scipy(family, z0, wo, wi, y, loss):
         return time.perf_counter() - t0, res
 
 
+def peak_rss_mb():
+    """This process's peak resident memory (MB): ``VmHWM`` of ``/proc/self/status``, which starts
+    afresh at exec (``ru_maxrss`` keeps the parent's resident size at the fork that started us)."""
+    import resource
+
+    try:
+        for line in open("/proc/self/status"):
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
 def child(family, material, dtype, tuned, repeats, quick, shared):
     """One configuration in this process: prints one JSON line with times, loss and peak RSS."""
     import json
-    import resource
 
     if dtype == "float64":
         jax.config.update("jax_enable_x64", True)
@@ -97,11 +110,12 @@ def child(family, material, dtype, tuned, repeats, quick, shared):
         t0 = time.perf_counter()
         r = fit(table, model=family, **kw)
         times.append(time.perf_counter() - t0)
+    peak = peak_rss_mb()  # before the numpy loss below
     valid = table.valid
     wo, wi, y = (np.asarray(a, float)[valid] for a in (table.wo, table.wi, table.values))
     out = {**summarize(times), "first_call_s": first, "compile_s": max(first - float(np.median(times)), 0.0),
            "loss": numpy_loss(family, r.z, wo, wi, y, r.loss), "iterations": r.steps, "converged": r.converged,
-           "warnings": r.warnings, "info": r.info, "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+           "warnings": r.warnings, "info": r.info, "peak_rss_mb": peak,
            "call": f"fit(table, model={family!r}{''.join(f', {k}={v!r}' for k, v in kw.items())})"
                    + (" with jax_enable_x64" if dtype == "float64" else "")}
     print("RESULT " + json.dumps(out), flush=True)

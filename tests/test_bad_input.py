@@ -348,3 +348,18 @@ def test_write_report_rejects_non_results(tmp_path):
     t = Table(wo=np.array([[0.0, 0.0, 1.0]]), wi=np.array([[0.0, 0.0, 1.0]]), values=np.ones((1, 3)))
     with pytest.raises(ParameterError, match=r"write_report: result must be a matfit FitResult.*got dict"):
         write_report({}, t, tmp_path)
+
+
+def test_fit_refuses_a_table_too_large_for_the_memory_before_allocating(monkeypatch):
+    """A fit whose estimated working memory exceeds what the system has raises one clear error
+    naming the row count, the estimate and the available memory."""
+    import importlib
+
+    from matfit.fitting import FitError, fit
+
+    fm = importlib.import_module("matfit.fitting.fit")
+    monkeypatch.setattr(fm, "available_memory", lambda: 2**20)  # 1 MiB available
+    wo = np.tile([0.0, 0.0, 1.0], (5000, 1))
+    t = Table(wo=wo, wi=wo, values=np.full((5000, 3), 0.1), channels="rgb")
+    with pytest.raises(FitError, match=r"5000 rows x 3 channels needs about 1\.\d MiB .* 1\.0 MiB are available"):
+        fit(t, model="lambert")

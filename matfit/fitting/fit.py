@@ -516,10 +516,11 @@ def check_memory(where, rows, channels, groups, dtype=None):
     need = memory_estimate(rows, channels, groups, dtype)
     have = available_memory()
     if have is not None and need > have:
-        raise FitError(f"{where}: a table of {rows} rows x {channels} channels needs about {need / 2**30:.1f} GiB "
-                       f"of working memory ({np.dtype(dtype or jnp.result_type(float)).name}), and "
-                       f"{have / 2**30:.1f} GiB are available; fit a subsample (Table.subsample or "
-                       "matfit fit --subsample N) or use a machine with more memory")
+        size = lambda b: f"{b / 2**30:.1f} GiB" if b >= 2**30 else f"{b / 2**20:.1f} MiB"  # noqa: E731
+        raise FitError(f"{where}: a table of {rows} rows x {channels} channels needs about {size(need)} of working "
+                       f"memory ({np.dtype(dtype or jnp.result_type(float)).name}), and {size(have)} are "
+                       "available; fit a subsample (Table.subsample or matfit fit --subsample N) or use a machine "
+                       "with more memory")
 
 
 def _table_arrays(table, dtype, used_only=False):
