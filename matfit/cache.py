@@ -35,10 +35,12 @@ def cache_dir() -> Path | None:
     --------
     >>> import os
     >>> from matfit.cache import cache_dir
+    >>> saved = os.environ.pop("MATFIT_NO_CACHE", None)
     >>> os.environ["MATFIT_CACHE_DIR"] = "/tmp/matfit-doc-cache"
     >>> str(cache_dir())
     '/tmp/matfit-doc-cache'
     >>> del os.environ["MATFIT_CACHE_DIR"]
+    >>> if saved is not None: os.environ["MATFIT_NO_CACHE"] = saved
     """
     if os.environ.get("MATFIT_NO_CACHE", "").strip() not in ("", "0"):
         return None

@@ -1,3 +1,4 @@
+import os
 import zlib
 from pathlib import Path
 
@@ -10,6 +11,7 @@ import pytest
 #: library in a few minutes; ``make test`` runs everything.
 CHECK_TIER = {
     "test_bad_input.py": ("test_albedo_method", "test_channel_counts_must_match"),
+    "test_cache.py": ("test_second_process_loads_compiled_programs",),
     "test_compile_count.py": ("test_counter_sees_a_compilation", "test_jitted_eval_compiles_once"),
     "test_conductor_guess.py": ("test_initial_guess_uses_fresnel_curve",),
     "test_fast.py": ("test_channel_model_slices_per_channel_parameters_only", "test_isotropic_distributions_read_only_cosines"),
@@ -43,6 +45,10 @@ def pytest_configure(config):
     # float64 is on for the whole session, switched once here (float32 tests pass float32
     # arrays and parameters explicitly); no test module switches it at import
     jax.config.update("jax_enable_x64", True)
+    # the CLI switches JAX's persistent compilation cache on; in-process CLI tests must neither
+    # write into the user's cache nor change how the rest of the session compiles
+    # (tests/test_cache.py tests the cache in subprocesses of its own)
+    os.environ["MATFIT_NO_CACHE"] = "1"
     config.addinivalue_line("markers", "check: the quick `make check` tier (see CHECK_TIER in tests/conftest.py)")
 
 

@@ -1,0 +1,52 @@
+"""The persistent compilation cache (matfit.cache): a second process loads what the first compiled."""
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+SCRIPT = textwrap.dedent("""
+    import json
+    import numpy as np
+    from jax import monitoring
+    import matfit.cache
+    where = matfit.cache.enable_compilation_cache()
+    counts = {"compiles": 0, "hits": 0}
+    def on_duration(event, duration_secs, **kw):
+        if event.endswith("backend_compile_duration"):
+            counts["compiles"] += 1
+    def on_event(event, **kw):
+        if event == "/jax/compilation_cache/cache_hits":
+            counts["hits"] += 1
+    monitoring.register_event_duration_secs_listener(on_duration)
+    monitoring.register_event_listener(on_event)
+    from matfit import Table
+    from matfit.fitting import fit
+    rng = np.random.default_rng(0)
+    wi = rng.normal(size=(64, 3)); wi[:, 2] = abs(wi[:, 2]); wi /= np.linalg.norm(wi, axis=1, keepdims=True)
+    wo = np.tile([0.0, 0.0, 1.0], (64, 1))
+    r = fit(Table(wo=wo, wi=wi, values=np.full((64, 3), 0.2), channels="rgb"), model="lambert", starts=1)
+    print("RESULT " + json.dumps({**counts, "dir": None if where is None else str(where),
+                                  "albedo": float(r.params["albedo"][0])}))
+""")
+
+
+def _run(env):
+    p = subprocess.run([sys.executable, "-c", SCRIPT], capture_output=True, text=True, env=env, timeout=600)
+    assert p.returncode == 0, p.stderr[-2000:]
+    line = [ln for ln in p.stdout.splitlines() if ln.startswith("RESULT ")][-1]
+    return json.loads(line[len("RESULT "):])
+
+
+def test_second_process_loads_compiled_programs(tmp_path):
+    env = {k: v for k, v in os.environ.items() if k != "MATFIT_NO_CACHE"}
+    env["MATFIT_CACHE_DIR"] = str(tmp_path / "cache")
+    first = _run(env)
+    assert first["dir"] == env["MATFIT_CACHE_DIR"] and first["compiles"] > 0
+    assert any((tmp_path / "cache").iterdir())  # entries were written
+    second = _run(env)
+    assert first["hits"] == 0 and second["hits"] > 0  # programs loaded from the cache
+    assert second["albedo"] == first["albedo"]  # the loaded programs compute the same fit
+    off = _run({**env, "MATFIT_NO_CACHE": "1"})
+    assert off["dir"] is None and off["hits"] == 0 and off["compiles"] > 0
