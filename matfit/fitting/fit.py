@@ -523,12 +523,13 @@ def check_memory(where, rows, channels, groups, dtype=None):
                        "with more memory")
 
 
-def _table_arrays(table, dtype, used_only=False):
-    """``(wo, wi, values, weight)`` of a table as JAX arrays; ``used_only``: only the rows with a
-    nonzero weight in some channel (the others add nothing to any residual: a MERL table's
-    invalid cells, a quarter of its rows, cost neither memory nor time)."""
-    if used_only:
-        w = table.effective_weight()
+def _table_arrays(table, dtype, weight=None):
+    """``(wo, wi, values, weight)`` of a table as JAX arrays; given the table's ``weight``
+    (:meth:`~matfit.Table.effective_weight`), only the rows with a nonzero weight in some channel
+    (the others add nothing to any residual: a MERL table's invalid cells, a quarter of its rows,
+    cost neither memory nor time)."""
+    if weight is not None:
+        w = weight
         keep = np.any(w > 0, axis=1)
         if not keep.all():
             f = (lambda x: jnp.asarray(x[keep], dtype=dtype)) if dtype is not None else (lambda x: jnp.asarray(x[keep]))
@@ -592,13 +593,13 @@ def fit(table, model="plastic", method=DEFAULT_METHOD, loss="l2", robust=None, r
     fixed_items = tuple(sorted((k, tuple(np.atleast_1d(np.asarray(v, float)).tolist())) for k, v in (fixed or {}).items()))
     par, _, run_full, objective = _solver(model, C, fixed_items, tuple(tied), method, loss, robust, float(robust_scale),
                                        int(max_steps), float(rtol), float(atol), device_count() == 1)
-    n_res = int(np.count_nonzero(table.effective_weight()))
+    w_eff = table.effective_weight()
+    n_res = int(np.count_nonzero(w_eff))
     if n_res <= par.size:
         raise FitError(f"fit: the table has {n_res} usable residuals for {par.size} free parameters "
                        f"({', '.join(par.labels)}): at least {par.size + 1} are needed")
-    check_memory("fit", int(np.count_nonzero(np.any(table.effective_weight() > 0, axis=1))), C,
-                 len(column_groups(par)[0]), dtype)
-    arrays = _table_arrays(table, dtype, used_only=True)
+    check_memory("fit", int(np.count_nonzero(np.any(w_eff > 0, axis=1))), C, len(column_groups(par)[0]), dtype)
+    arrays = _table_arrays(table, dtype, weight=w_eff)
     n_rows = arrays[2].size
     rows = _split_rows(arrays)
     # a large table's candidate starts are screened on its subset (24 candidates on a full MERL
