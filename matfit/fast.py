@@ -19,7 +19,6 @@ count: new parameter values, or new directions of the same count, reuse the comp
 
 from __future__ import annotations
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np

@@ -117,8 +117,8 @@ class SoAPairs(eqx.Module):
     def isotropic(self):
         """``(wo, wi, h, ok)``: the directions as :class:`~matfit._math.IsoDir` (what an isotropic
         microfacet lobe reads of them: cosines, and ``h``'s squared sine), already mapped to the
-        normal where ``ok`` (the pairs' validity) is False, as the ``ok`` argument of
-        :meth:`~matfit.models.RoughConductor.eval_half` expects."""
+        normal where ``ok`` (the pairs' validity) is False, as
+        :meth:`~matfit.models.AbstractMicrofacetBSDF.reflection_lobe` reads them."""
         ok, oz, iz, hz, ht2 = self.iso
         return IsoDir.from_cos(oz), IsoDir.from_cos(iz), IsoDir(hz, ht2), ok
 

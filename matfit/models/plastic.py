@@ -40,7 +40,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._math import COS_EPS, cosine_hemisphere, safe_div, where_up
+from .._math import cosine_hemisphere, safe_div
 from ._coated import AbstractCoatedBSDF
 from ._coat import coat_internal_reflectance, coat_reflection_pairs, coat_transmittance, is_smooth, make_coat
 from ._params import as_channels, check_directions, check_range, check_u
