@@ -406,7 +406,12 @@ def initial_guesses(tables, par: Parametrization):
     for p in par.free:
         lo, hi = p.lower, p.upper
         span = (hi - lo) if np.isfinite(hi) else 1.0
-        out[p.name] = np.clip(guess[p.name], lo + 1e-3 * span, hi - 1e-3 * span if np.isfinite(hi) else np.inf)
+        # a parameter without a data-driven guess (a user-defined family's) starts mid-range
+        g = guess.get(p.name)
+        if g is None:
+            mid = 0.5 * (lo + hi) if np.isfinite(hi) else lo + 1.0
+            g = np.full((B, V.shape[2]) if p.per_channel else B, mid)
+        out[p.name] = np.clip(g, lo + 1e-3 * span, hi - 1e-3 * span if np.isfinite(hi) else np.inf)
     return out
 
 

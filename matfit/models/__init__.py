@@ -4,6 +4,7 @@ from ._base import AbstractBSDF
 from ._microfacet import AbstractMicrofacetBSDF
 from ._pairs import SoAPairs, half_vector, valid_reflection
 from .blend import Blend
+from .gltf_pbr import GltfPBR
 from .lambert import Lambert
 from .layered import CoatedConductor, Layered
 from .plastic import Plastic
@@ -25,6 +26,7 @@ __all__ = [
     "Layered",
     "CoatedConductor",
     "Blend",
+    "GltfPBR",
     "RoughConductor",
     "RoughDielectric",
     "SmoothConductor",

@@ -1,0 +1,113 @@
+"""The exporters and their registry."""
+
+from __future__ import annotations
+
+from ..errors import ParameterError
+from ..models import AbstractBSDF
+from . import _mitsuba
+from ._fidelity import fit_target, relative_rmse
+from ._result import ExportResult, Fidelity, ParamMapping
+
+
+def _check(model, owner):
+    if not isinstance(model, AbstractBSDF):
+        raise ParameterError(f"{owner}: model must be a matfit model, got {type(model).__name__}")
+
+
+def _approx(owner, model, plan, supported):
+    if plan is None:
+        raise ParameterError(f"{owner}: {type(model).__name__} has no mapping to this target; it exports {supported}")
+    family, init = plan
+    return fit_target(model, family, init=init)
+
+
+def to_mitsuba(model) -> ExportResult:
+    """A Mitsuba 3 ``load_dict`` dictionary of ``model``'s BSDF.
+
+    Parameters
+    ----------
+    model : matfit.models.AbstractBSDF
+
+    Returns
+    -------
+    ExportResult
+        ``content`` is the dict (``mitsuba.load_dict(result.content)`` loads it).
+
+    Examples
+    --------
+    >>> from matfit.models import RoughConductor
+    >>> r = to_mitsuba(RoughConductor(0.2, [0.2, 0.9, 1.1], [3.9, 2.4, 2.2]))
+    >>> r.content["type"], r.content["alpha"], r.exact
+    ('roughconductor', 0.2, True)
+    """
+    _check(model, "to_mitsuba")
+    got = _mitsuba.exact_mitsuba(model)
+    fid, target, notes = None, model, []
+    if got is None:
+        target = _approx("to_mitsuba", model, _mitsuba.approximate_mitsuba(model), _mitsuba.SUPPORTED)
+        got = _mitsuba.exact_mitsuba(target)
+        got = (got[0], [ParamMapping(m.target, m.value, "fitted", False, "fitted to the model over the hemisphere")
+                        for m in got[1]])
+        fid = Fidelity(relative_rmse(model, target), _n(), "fitted")
+        notes.append(f"Mitsuba 3 has no plugin for {type(model).__name__}: a {type(target).__name__} fitted to it")
+    elif not all(m.exact for m in got[1]):
+        notes.append("mapped one to one; Mitsuba evaluates its own form of the terms marked approximate")
+    return ExportResult("mitsuba", got[0], got[1], target, fid, notes)
+
+
+def _n():
+    from ._fidelity import N_PAIRS
+
+    return N_PAIRS
+
+
+def to_mitsuba_xml(model) -> ExportResult:
+    """:func:`to_mitsuba` as Mitsuba scene XML (a ``<bsdf>`` element).
+
+    Examples
+    --------
+    >>> from matfit.models import Lambert
+    >>> print(to_mitsuba_xml(Lambert([0.5, 0.4, 0.3])).content)
+    <bsdf type="diffuse" id="matfit">
+        <rgb name="reflectance" value="0.5, 0.4, 0.3"/>
+    </bsdf>
+    """
+    r = to_mitsuba(model)
+    return ExportResult("mitsuba-xml", _mitsuba.to_xml(r.content, 0, "matfit"), r.mapping, r.model, r.fidelity, r.notes)
+
+
+def to_pbrt(model) -> ExportResult:
+    from ._pbrt import to_pbrt as f
+
+    return f(model)
+
+
+def to_gltf(model) -> ExportResult:
+    from ._gltf import to_gltf as f
+
+    return f(model)
+
+
+def to_materialx(model) -> ExportResult:
+    from ._materialx import to_materialx as f
+
+    return f(model)
+
+
+#: Target name -> exporter.
+EXPORTERS = {"mitsuba": to_mitsuba, "mitsuba-xml": to_mitsuba_xml, "pbrt": to_pbrt, "gltf": to_gltf,
+             "mtlx": to_materialx}
+
+
+def export(model, to) -> ExportResult:
+    """Export ``model`` to the target ``to`` (a key of :data:`EXPORTERS`).
+
+    Examples
+    --------
+    >>> from matfit.models import Lambert
+    >>> export(Lambert(0.5), "mitsuba").content["type"]
+    'diffuse'
+    """
+    if to not in EXPORTERS:
+        raise ParameterError(f"export: target must be one of {sorted(EXPORTERS)}, got {to!r}")
+    return EXPORTERS[to](model)

@@ -1,0 +1,165 @@
+"""glTF 2.0: a material of the metallic-roughness model with KHR_materials_ior,
+KHR_materials_specular and KHR_materials_clearcoat.
+
+A glTF material is :class:`~matfit.models.GltfPBR`. A Lambertian model maps exactly (metallic 0,
+specular factor 0); a :class:`~matfit.models.GltfPBR` maps exactly; every other model is
+approximated by fitting a GltfPBR to it over the hemisphere (:func:`~matfit.export.fit_target`):
+a conductor by a metal (F0 colour and roughness: Schlick's Fresnel cannot follow a complex
+index), a plastic by a dielectric (base colour, roughness, ior), a coated metal by a metal under
+the clear coat, anything else by the general metallic-roughness material.
+
+Roughness: ``roughnessFactor = sqrt(alpha)`` (glTF squares it), likewise for the clear coat.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax.numpy as jnp
+import numpy as np
+
+from ..errors import ParameterError
+from ..fresnel import fresnel_conductor
+from ..models import GltfPBR, Lambert, Layered, Plastic, RoughConductor, SmoothConductor
+from ._model_file import plain_numbers
+from ._fidelity import N_PAIRS, fit_target, relative_rmse
+from ._result import ExportResult, Fidelity, ParamMapping
+
+EXTENSIONS = ("KHR_materials_ior", "KHR_materials_specular", "KHR_materials_clearcoat")
+
+
+def _rgb(x):
+    a = np.broadcast_to(np.asarray(x, float).ravel(), (3,)) if np.asarray(x).size in (1, 3) else None
+    if a is None:
+        raise ParameterError(f"to_gltf: glTF colours have 3 channels, the model has {np.asarray(x).size}")
+    return plain_numbers(np.asarray(x).ravel() if np.asarray(x).size == 3 else np.repeat(np.asarray(x).ravel(), 3))
+
+
+def _f(x):
+    return plain_numbers(np.asarray(x).ravel()[0])
+
+
+@functools.lru_cache(maxsize=None)
+def families():
+    """The GltfPBR families the exporter fits: ``metal``, ``dielectric``, ``coated_metal``, ``general``."""
+    from ..fitting import Family, Param
+
+    col = Param("base_color", 0.0, 1.0, True, "base colour")
+    a = Param("alpha", 2e-3, 1.0, False, "GGX width (roughnessFactor^2)")
+    return {
+        "metal": Family("gltf_metal", (col, a), lambda p, C: GltfPBR(p["base_color"], 1.0, p["alpha"]),
+                        "glTF metal"),
+        "dielectric": Family("gltf_dielectric", (col, a, Param("ior", 1.05, 3.0, False, "index of refraction")),
+                             lambda p, C: GltfPBR(p["base_color"], 0.0, p["alpha"], p["ior"]), "glTF dielectric"),
+        "coated_metal": Family("gltf_coated_metal", (col, a, Param("clearcoat_alpha", 2e-3, 1.0, False, "coat width")),
+                               lambda p, C: GltfPBR(p["base_color"], 1.0, p["alpha"], clearcoat=1.0,
+                                                    clearcoat_alpha=p["clearcoat_alpha"]), "glTF metal under a clear coat"),
+        "general": Family("gltf_general", (col, Param("metallic", 0.0, 1.0, False, "metallic"), a),
+                          lambda p, C: GltfPBR(p["base_color"], p["metallic"], p["alpha"]), "glTF metallic-roughness"),
+    }
+
+
+def _f0(eta, k):
+    return np.clip(np.asarray(fresnel_conductor(jnp.ones(()), jnp.asarray(eta), jnp.asarray(k))), 0.01, 0.99)
+
+
+def _plan(model):
+    fam = families()
+    if isinstance(model, RoughConductor):
+        return fam["metal"], {"base_color": _f0(model.eta, model.k), "alpha": float(np.clip(np.asarray(model.alpha), 3e-3, 0.99))}
+    if isinstance(model, Plastic):
+        a = float(np.clip(np.asarray(getattr(model.coat, "alpha", 0.003)), 3e-3, 0.99))
+        return fam["dielectric"], {"base_color": np.clip(np.asarray(model.reflectance), 0.01, 0.99), "alpha": a,
+                                   "ior": float(np.clip(np.asarray(model.eta), 1.06, 2.9))}
+    if isinstance(model, Layered) and isinstance(model.base, RoughConductor):
+        eta_c = float(np.asarray(model.coat.eta))
+        a_c = float(np.clip(np.asarray(getattr(model.coat, "alpha", 0.003)), 3e-3, 0.99))
+        return fam["coated_metal"], {"base_color": _f0(np.asarray(model.base.eta) * eta_c, np.asarray(model.base.k) * eta_c),
+                                     "alpha": float(np.clip(np.asarray(model.base.alpha), 3e-3, 0.99)),
+                                     "clearcoat_alpha": a_c}
+    if model.has_delta_lobe:
+        return None
+    return fam["general"], None
+
+
+def gltf_parameters(m: GltfPBR):
+    """The glTF material dict of a :class:`~matfit.models.GltfPBR` (exact)."""
+    pbr = {"baseColorFactor": _rgb(m.base_color) + [1.0], "metallicFactor": _f(m.metallic),
+           "roughnessFactor": float(np.sqrt(_f(m.alpha)))}
+    ext = {"KHR_materials_ior": {"ior": _f(m.ior)},
+           "KHR_materials_specular": {"specularFactor": _f(m.specular), "specularColorFactor": _rgb(m.specular_color)}}
+    if _f(m.clearcoat) > 0:
+        ext["KHR_materials_clearcoat"] = {"clearcoatFactor": _f(m.clearcoat),
+                                          "clearcoatRoughnessFactor": float(np.sqrt(_f(m.clearcoat_alpha)))}
+    return {"name": "matfit", "pbrMetallicRoughness": pbr, "extensions": ext}
+
+
+def _mapping(mat, source, exact, note=""):
+    pbr, ext = mat["pbrMetallicRoughness"], mat["extensions"]
+    out = [ParamMapping("baseColorFactor", pbr["baseColorFactor"], source.get("base", "base_color"), exact, note),
+           ParamMapping("metallicFactor", pbr["metallicFactor"], source.get("metallic", "metallic"), exact, note),
+           ParamMapping("roughnessFactor", pbr["roughnessFactor"], source.get("alpha", "sqrt(alpha)"), exact, note),
+           ParamMapping("KHR_materials_ior.ior", ext["KHR_materials_ior"]["ior"], source.get("ior", "ior"), exact, note),
+           ParamMapping("KHR_materials_specular.specularFactor", ext["KHR_materials_specular"]["specularFactor"],
+                        source.get("specular", "specular"), exact, note)]
+    if "KHR_materials_clearcoat" in ext:
+        c = ext["KHR_materials_clearcoat"]
+        out += [ParamMapping("KHR_materials_clearcoat.clearcoatFactor", c["clearcoatFactor"], "clearcoat", exact, note),
+                ParamMapping("KHR_materials_clearcoat.clearcoatRoughnessFactor", c["clearcoatRoughnessFactor"],
+                             "sqrt(clearcoat_alpha)", exact, note)]
+    return out
+
+
+def gltf_target(model):
+    """``(GltfPBR, exact, fidelity, notes)``: the glTF BRDF that stands for ``model``."""
+    if isinstance(model, GltfPBR):
+        return model, True, None, []
+    if isinstance(model, Lambert):
+        return GltfPBR(np.broadcast_to(np.asarray(model.reflectance), (3,)), 0.0, 1.0, specular=0.0), True, None, []
+    if isinstance(model, SmoothConductor):
+        t = GltfPBR(_f0(model.eta, model.k), 1.0, 1e-4)
+        return t, False, None, ["a mirror: baseColor is the normal-incidence Fresnel reflectance (Schlick "
+                                "approximates the conductor's curve); not measured (a delta lobe)"]
+    plan = _plan(model)
+    if plan is None:
+        raise ParameterError(f"to_gltf: {type(model).__name__} has a Dirac lobe glTF's metallic-roughness model "
+                             "cannot represent; exports Lambert, GltfPBR, conductors, Plastic, Layered over a "
+                             "conductor and blends of rough models")
+    fam, init = plan
+    t = fit_target(model, fam, init=init, channels=3)
+    fid = Fidelity(relative_rmse(model, t), N_PAIRS, "fitted")
+    return t, False, fid, [f"{type(model).__name__} approximated by the glTF BRDF fitted to it ({fam.doc})"]
+
+
+def to_gltf(model) -> ExportResult:
+    """A glTF 2.0 document holding one material for ``model``.
+
+    Parameters
+    ----------
+    model : matfit.models.AbstractBSDF
+
+    Returns
+    -------
+    ExportResult
+        ``content`` is the glTF JSON as a dict (``pygltflib.GLTF2().from_dict`` reads it);
+        ``model`` is the glTF BRDF as a :class:`~matfit.models.GltfPBR`.
+
+    Examples
+    --------
+    >>> from matfit.models import Lambert
+    >>> r = to_gltf(Lambert([0.5, 0.4, 0.3]))
+    >>> r.content["materials"][0]["pbrMetallicRoughness"]["baseColorFactor"], r.exact
+    ([0.5, 0.4, 0.3, 1.0], True)
+    """
+    from ..models import AbstractBSDF
+
+    if not isinstance(model, AbstractBSDF):
+        raise ParameterError(f"to_gltf: model must be a matfit model, got {type(model).__name__}")
+    t, exact, fid, notes = gltf_target(model)
+    mat = gltf_parameters(t)
+    used = sorted(mat["extensions"])
+    doc = {"asset": {"version": "2.0", "generator": "matfit"}, "extensionsUsed": used, "materials": [mat]}
+    src = {"base": "albedo", "metallic": "0", "specular": "0 (no specular layer)"} if isinstance(model, Lambert) else (
+        {} if exact else {k: "fitted" for k in ("base", "metallic", "alpha", "ior", "specular")})
+    mapping = _mapping(mat, src, exact, "" if exact else "fitted to the model over the hemisphere")
+    return ExportResult("gltf", doc, mapping, t, fid, notes)

@@ -1,0 +1,194 @@
+"""A model as a JSON document: what ``matfit fit`` writes next to its report and what
+``matfit export`` and ``matfit render`` read.
+
+The document is ``{"matfit_model": 1, "model": {"type": <class name>, <field>: <value>, ...}}``:
+array fields as (nested) lists of numbers, static fields as they are, nested models as nested
+objects. It holds numbers and names only (no pickles) and is read back by rebuilding each
+class from its fields, so every value is checked against the class's declared fields.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+
+from ..errors import DataFormatError, ParameterError
+from .. import models as _models
+
+FORMAT_VERSION = 1
+
+#: The classes a model document may name.
+MODEL_CLASSES = {name: getattr(_models, name) for name in (
+    "Lambert", "RoughConductor", "SmoothConductor", "RoughDielectric", "SmoothDielectric", "Plastic", "Layered",
+    "Blend", "StochasticLayered", "GltfPBR")}
+
+
+def _register(cls):
+    MODEL_CLASSES[cls.__name__] = cls
+    return cls
+
+
+def plain_numbers(a):
+    """Python floats (nested lists for arrays) of the shortest decimal strings that read back as the same values (a float32
+    0.4 is written 0.4, not 0.4000000059604645).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> plain_numbers(np.float32(0.4)), plain_numbers(np.array([0.1, 0.2], np.float32))
+    (0.4, [0.1, 0.2])
+    """
+    return _shortest(a)
+
+
+def _shortest(a):
+    """Nested lists of the shortest decimal strings that read back as the same values (a float32
+    0.4 is written 0.4, not 0.4000000059604645)."""
+    a = np.asarray(a)
+    if a.dtype.kind != "f":
+        return a.astype(float).tolist()
+    if a.ndim == 0:
+        return float(np.format_float_positional(a[()], unique=True, trim="-"))
+    flat = [float(np.format_float_positional(x, unique=True, trim="-")) for x in a.ravel()]
+    return np.asarray(flat).reshape(a.shape).tolist()
+
+
+def describe_model(model) -> dict:
+    """The model's fields as a JSON-ready dict (nested models as nested dicts).
+
+    Parameters
+    ----------
+    model : matfit.models.AbstractBSDF
+        A model whose parameters are concrete (not traced), of a class in :data:`MODEL_CLASSES`.
+
+    Returns
+    -------
+    dict
+        ``{"type": class name, field: value, ...}``.
+
+    Examples
+    --------
+    >>> from matfit.models import Lambert
+    >>> describe_model(Lambert([0.5, 0.4, 0.3]))["type"]
+    'Lambert'
+    """
+    cls = type(model)
+    if MODEL_CLASSES.get(cls.__name__) is not cls:
+        raise ParameterError(f"describe_model: {cls.__name__} is not a model class matfit can write; "
+                             f"expected one of {sorted(MODEL_CLASSES)}")
+    out = {"type": cls.__name__}
+    for f in dataclasses.fields(model):
+        v = getattr(model, f.name)
+        if v is None or isinstance(v, (str, bool, int, float)):
+            out[f.name] = v
+        elif isinstance(v, _models.AbstractBSDF):
+            out[f.name] = describe_model(v)
+        else:
+            a = np.asarray(v)
+            if not np.all(np.isfinite(a)):
+                raise ParameterError(f"describe_model: {cls.__name__}.{f.name} has non-finite values {a.tolist()}")
+            out[f.name] = _shortest(a)
+    return out
+
+
+def model_from_description(d, source="model description"):
+    """Rebuild a model from :func:`describe_model`'s dict.
+
+    Parameters
+    ----------
+    d : dict
+        ``{"type": ..., fields...}``.
+    source : str
+        Named in error messages (e.g. the file it came from).
+
+    Returns
+    -------
+    matfit.models.AbstractBSDF
+
+    Examples
+    --------
+    >>> from matfit.models import RoughConductor
+    >>> m = RoughConductor(0.2, [0.2, 0.9, 1.1], [3.9, 2.4, 2.2])
+    >>> model_from_description(describe_model(m)).alpha.item()
+    0.2
+    """
+    if not isinstance(d, dict) or "type" not in d:
+        raise DataFormatError(f"{source}: a model must be an object with a 'type' field, found {type(d).__name__}")
+    cls = MODEL_CLASSES.get(d["type"])
+    if cls is None:
+        raise DataFormatError(f"{source}: field 'type': expected one of {sorted(MODEL_CLASSES)}, found {d['type']!r}")
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    missing = sorted(set(fields) - set(d))
+    extra = sorted(set(d) - set(fields) - {"type"})
+    if missing or extra:
+        raise DataFormatError(f"{source}: {cls.__name__} expects fields {sorted(fields)}; missing {missing}, "
+                              f"unexpected {extra}")
+    obj = object.__new__(cls)
+    for name, f in fields.items():
+        v = d[name]
+        where = f"{source}: {cls.__name__}.{name}"
+        if isinstance(v, dict):
+            v = model_from_description(v, source)
+        elif f.metadata.get("static", False) or isinstance(v, (str, bool)) or v is None:
+            pass
+        else:
+            try:
+                a = np.asarray(v, dtype=float)
+            except (TypeError, ValueError):
+                raise DataFormatError(f"{where}: expected numbers, found {v!r}") from None
+            if not np.all(np.isfinite(a)):
+                raise DataFormatError(f"{where}: expected finite numbers, found {a.tolist()}")
+            v = jnp.asarray(a)
+        object.__setattr__(obj, name, v)
+    return obj
+
+
+def save_model(path, model, **extra):
+    """Write ``model`` as a model document (JSON) at ``path``; ``extra`` keys are stored beside it.
+
+    Examples
+    --------
+    >>> import tempfile, os
+    >>> from matfit.models import Lambert
+    >>> p = os.path.join(tempfile.mkdtemp(), "m.json")
+    >>> save_model(p, Lambert(0.5), family="lambert")
+    >>> type(load_model(p)).__name__
+    'Lambert'
+    """
+    doc = {"matfit_model": FORMAT_VERSION, "model": describe_model(model), **extra}
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w") as fh:
+        json.dump(doc, fh, indent=2)
+
+
+def load_model(path):
+    """Read a model from a model document or a ``report.json`` written by :func:`matfit.report.write_report`.
+
+    Parameters
+    ----------
+    path : str or Path
+
+    Returns
+    -------
+    matfit.models.AbstractBSDF
+
+    Examples
+    --------
+    See :func:`save_model`.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise DataFormatError(f"{p}: no such file")
+    try:
+        with open(p) as fh:
+            doc = json.load(fh)
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise DataFormatError(f"{p}: not a JSON document ({exc})") from None
+    if not isinstance(doc, dict) or "model" not in doc:
+        raise DataFormatError(f"{p}: field 'model': expected a model document (matfit fit --save-model, or a "
+                              "report.json), found no 'model' field")
+    return model_from_description(doc["model"], str(p))

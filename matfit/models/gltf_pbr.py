@@ -1,0 +1,159 @@
+r"""glTF 2.0 metallic-roughness material: the BRDF of the glTF specification (Appendix B) with
+the KHR_materials_ior, KHR_materials_specular and KHR_materials_clearcoat extensions.
+
+This is the BRDF a glTF viewer renders, written as a matfit model so that matfit can fit it to
+any of its own models (:mod:`matfit.export`) and measure how close the glTF material comes. With
+:math:`S_\alpha = D\,G_2/(4|\cos\theta_o\cos\theta_i|)` the GGX specular lobe
+(:math:`\alpha = \text{roughness}^2`), :math:`c` the base colour, :math:`h` the half vector and
+:math:`s(f_0, f_{90}) = f_0 + (f_{90} - f_0)(1 - |\omega_o\cdot h|)^5` (Schlick):
+
+.. math::
+    f_{diel} &= (1 - F_d)\,\frac{c}{\pi} + F_d\,S_\alpha,\qquad
+      F_d = s\big(\min(f_0(\eta)\,c_s, 1)\,w_s,\ w_s\big),\quad f_0(\eta) = \left(\frac{\eta-1}{\eta+1}\right)^2\\
+    f_{metal} &= s(c, 1)\,S_\alpha\\
+    f_{base} &= (1 - m)\,f_{diel} + m\,f_{metal}\\
+    f &= (1 - w_c F_c)\,f_{base} + w_c F_c\,S_{\alpha_c},\qquad F_c = 0.04 + 0.96\,(1 - |\cos\theta_o|)^5
+
+(:math:`m` metallic, :math:`w_s, c_s` the specular factor and colour, :math:`w_c` the clear coat
+factor; the coat's Fresnel reads the viewing angle to the coat's normal, as the clear coat
+extension specifies). Reflection only: zero when either direction is below the horizon.
+
+Sampling: a mixture of the cosine-weighted hemisphere, the specular lobe's visible normals and
+the coat lobe's, picked with probabilities proportional to ``(1 - m) / 2``, ``(1 + m) / 2`` and
+``w_c / 2``; the pdf is the exact mixture.
+
+Parameters
+----------
+base_color : (..., C) in [0, 1], differentiable (the ``baseColorFactor``).
+metallic : [0, 1], differentiable (``metallicFactor``).
+alpha : GGX width of the specular lobe, ``roughnessFactor**2``, > 0, differentiable.
+ior : index of refraction (KHR_materials_ior), default 1.5, differentiable.
+specular : specular factor (KHR_materials_specular), [0, 1], default 1.
+specular_color : (..., C) specular colour factor, default 1.
+clearcoat : clear coat factor (KHR_materials_clearcoat), [0, 1], default 0.
+clearcoat_alpha : GGX width of the coat, ``clearcoatRoughnessFactor**2``, default 0.01.
+masking : Smith form of both lobes, "separable" (default) or "height_correlated".
+
+References
+----------
+- The Khronos Group, "glTF 2.0 Specification", Appendix B: BRDF Implementation, 2021.
+- The Khronos Group, KHR_materials_ior, KHR_materials_specular, KHR_materials_clearcoat
+  extension specifications.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+
+from .._math import COS_EPS, cosine_hemisphere, normalize, safe_div
+from ._base import AbstractBSDF
+from ._pairs import SoAPairs
+from ._params import as_channels, as_param, check_channels, check_directions, check_range, check_u
+from .rough_conductor import RoughConductor
+
+
+def _schlick(f0, f90, c):
+    return f0 + (f90 - f0) * (1 - c) ** 5
+
+
+class GltfPBR(AbstractBSDF):
+    """The glTF metallic-roughness BRDF (with the ior, specular and clear coat extensions).
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit.models import GltfPBR
+    >>> m = GltfPBR(jnp.array([0.8, 0.2, 0.1]), metallic=0.0, alpha=0.25)
+    >>> up = jnp.array([0.0, 0.0, 1.0])
+    >>> m.eval(up, up).shape
+    (3,)
+    """
+
+    base_color: jnp.ndarray = eqx.field(converter=as_channels)
+    metallic: jnp.ndarray
+    alpha: jnp.ndarray
+    ior: jnp.ndarray
+    specular: jnp.ndarray
+    specular_color: jnp.ndarray = eqx.field(converter=as_channels)
+    clearcoat: jnp.ndarray
+    clearcoat_alpha: jnp.ndarray
+    masking: str = eqx.field(static=True)
+
+    def __init__(self, base_color, metallic=0.0, alpha=0.25, ior=1.5, specular=1.0, specular_color=1.0, clearcoat=0.0,
+                 clearcoat_alpha=0.01, masking="separable"):
+        check_range("GltfPBR", "base_color", base_color, 0.0, 1.0)
+        check_range("GltfPBR", "metallic", metallic, 0.0, 1.0)
+        check_range("GltfPBR", "alpha", alpha, 0.0, lo_open=True)
+        check_range("GltfPBR", "ior", ior, 0.0, lo_open=True)
+        check_range("GltfPBR", "specular", specular, 0.0, 1.0)
+        check_range("GltfPBR", "specular_color", specular_color, 0.0)
+        check_range("GltfPBR", "clearcoat", clearcoat, 0.0, 1.0)
+        check_range("GltfPBR", "clearcoat_alpha", clearcoat_alpha, 0.0, lo_open=True)
+        check_channels("GltfPBR", base_color=base_color, specular_color=specular_color)
+        self.base_color = base_color
+        self.metallic = as_param(metallic)
+        self.alpha = as_param(alpha)
+        self.ior = as_param(ior)
+        self.specular = as_param(specular)
+        self.specular_color = specular_color
+        self.clearcoat = as_param(clearcoat)
+        self.clearcoat_alpha = as_param(clearcoat_alpha)
+        self.masking = masking
+        RoughConductor(1.0, 1.0, 0.0, masking=masking)  # checks the masking name
+
+    @property
+    def channels(self):
+        return jnp.broadcast_shapes(self.base_color.shape, self.specular_color.shape)[-1]
+
+    def _lobe(self, alpha):
+        # the Fresnel-free GGX lobe D G2 / (4 cos cos) and its sampler, shared with RoughConductor
+        return RoughConductor(alpha, 1.0, 0.0, masking=self.masking)
+
+    def eval(self, wo, wi):
+        check_directions("GltfPBR.eval", wo=wo, wi=wi)
+        pairs = SoAPairs.of(wo, wi)
+        ok, cos_o = pairs.iso[0], pairs.iso[1]
+        vh = pairs.fresnel_angle().c[..., None]
+        spec = self._lobe(self.alpha).reflection_lobe(pairs)[..., None]
+        c = self.base_color
+        f0 = ((self.ior - 1) / (self.ior + 1)) ** 2
+        ws = self.specular[..., None]
+        Fd = _schlick(jnp.minimum(f0[..., None] * self.specular_color, 1) * ws, ws, vh)
+        diel = (1 - Fd) * c / jnp.pi + Fd * spec
+        metal = _schlick(c, 1.0, vh) * spec
+        m = self.metallic[..., None]
+        f = (1 - m) * diel + m * metal
+        wc = self.clearcoat[..., None]
+        Fc = (_schlick(0.04, 1.0, jnp.clip(cos_o, 0, 1)) * wc[..., 0])[..., None]
+        coat = self._lobe(self.clearcoat_alpha).reflection_lobe(pairs)[..., None]
+        f = (1 - Fc) * f + Fc * coat
+        return jnp.where(ok[..., None], f, 0)
+
+    def _probs(self):
+        pd, ps, pc = (1 - self.metallic) / 2, (1 + self.metallic) / 2, self.clearcoat / 2
+        tot = pd + ps + pc
+        return pd / tot, ps / tot, pc / tot
+
+    def pdf(self, wo, wi):
+        check_directions("GltfPBR.pdf", wo=wo, wi=wi)
+        pd, ps, pc = self._probs()
+        ok = (wo[..., 2] > COS_EPS) & (wi[..., 2] > COS_EPS)
+        p_d = jnp.where(ok, jnp.maximum(wi[..., 2], 0) / jnp.pi, 0)
+        return (pd * p_d + ps * self._lobe(self.alpha).reflection_pdf(wo, wi)
+                + pc * self._lobe(self.clearcoat_alpha).reflection_pdf(wo, wi))
+
+    def sample(self, wo, u):
+        check_directions("GltfPBR.sample", wo=wo)
+        check_u("GltfPBR.sample", u, 3)
+        pd, ps, _ = self._probs()
+        wi_d = cosine_hemisphere(u[..., 1], u[..., 2])
+        wi_s = self._lobe(self.alpha).reflection_sample(wo, u[..., 1:3])
+        wi_c = self._lobe(self.clearcoat_alpha).reflection_sample(wo, u[..., 1:3])
+        u0 = u[..., 0][..., None]
+        wi = jnp.where(u0 < pd[..., None], wi_d, jnp.where(u0 < (pd + ps)[..., None], wi_s, wi_c))
+        wi = normalize(wi)
+        pdf = self.pdf(wo, wi)
+        ok = (pdf > 0) & (wi[..., 2] > COS_EPS) & (wo[..., 2] > COS_EPS)
+        weight = safe_div(self.eval(wo, wi) * jnp.abs(wi[..., 2])[..., None], pdf[..., None])
+        return wi, jnp.where(ok[..., None], weight, 0), jnp.where(ok, pdf, 0)
