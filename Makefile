@@ -22,7 +22,7 @@ demo: $(STAMP)
 	$(PY) -m matfit info demo_out/demo_synth.npz
 
 test: $(STAMP)
-	$(PY) -m pytest -q tests matfit --doctest-modules
+	$(PY) -m pytest -q -n 2 --dist loadfile tests matfit --doctest-modules
 
 # The quick tier while working (a few minutes): the tests marked `check` (tests/conftest.py
 # CHECK_TIER, one or a few per test file) and the library's doctests.

@@ -1,4 +1,4 @@
-"""Command-line interface: ``matfit demo``, ``synth``, ``info``, ``fit``, ``compare``.
+"""Command-line interface: ``matfit demo``, ``synth``, ``info``, ``fit``, ``compare``, ``export``, ``render``.
 
 Examples
 --------
@@ -15,6 +15,11 @@ truth when the table is synthetic) and, with ``--report``, writes a report (``ma
 ``--method mcmc`` runs a least-squares fit and then samples the posterior (``matfit.fitting.mcmc``).
 ``matfit compare TABLE --models lambert,conductor,plastic`` compares families on a hold-out split
 (``matfit.fitting.select``).
+
+``matfit fit TABLE --model plastic --export gltf paint.gltf`` also writes the material for a renderer
+(``mitsuba``, ``mitsuba-xml``, ``pbrt``, ``gltf``, ``mtlx``; ``matfit.export``) and prints how exactly each
+parameter maps; ``--save-model FIT.json`` keeps the model, and ``matfit export FIT.json --to pbrt -o m.pbrt``
+or ``matfit render FIT.json --env sky -o sphere.png`` use it later (a report's ``model.json`` too).
 
 Errors (bad arguments, scene-file errors, malformed data, impossible fits) are printed as one line and
 the exit status is 2.
@@ -168,6 +173,46 @@ def _cmd_fit(args):
         write_report(result, full, args.report, posterior=posterior, truth=truth,
                      title=f"{args.model} fit of {Path(args.table).name}")
         print(f"wrote report to {Path(args.report) / 'report.md'}")
+    if args.save_model:
+        from .export import save_model
+
+        save_model(args.save_model, result.model, family=args.model, source=str(args.table))
+        print(f"wrote {args.save_model}")
+    if args.export:
+        _write_export(result.model, args.export[0], args.export[1])
+    return 0
+
+
+def _write_export(model, target, path):
+    from .export import export
+
+    r = export(model, target)
+    r.write(path)
+    print(r.summary())
+    print(f"wrote {path}")
+
+
+def _cmd_export(args):
+    from .export import load_model
+
+    _write_export(load_model(args.fit), args.to, args.output)
+    return 0
+
+
+def _cmd_render(args):
+    from .export import load_model
+    from .render import render_sphere, save_png
+
+    model = load_model(args.model)
+    img = render_sphere(model, args.env, size=args.size, spp=args.spp, seed=args.seed, strategy=args.strategy,
+                        progress=True)
+    out = Path(args.output)
+    if out.suffix.lower() == ".npy":
+        out.parent.mkdir(parents=True, exist_ok=True)
+        np.save(out, img)
+    else:
+        save_png(out, img, exposure=args.exposure)
+    print(f"wrote {out}: {args.size}x{args.size}, {args.spp} spp, environment {args.env}")
     return 0
 
 
@@ -244,6 +289,9 @@ def build_parser():
     inf.add_argument("table", help="file to summarize")
     inf.set_defaults(func=_cmd_info)
 
+    from .export import EXPORTERS
+
+    targets = sorted(EXPORTERS)
     families = sorted(FAMILIES)
     fi = sub.add_parser("fit", help="fit a model family to a table or measured file")
     fi.add_argument("table", help="table or measured file (.npz .csv .binary .bsdf .alta)")
@@ -263,7 +311,28 @@ def build_parser():
     fi.add_argument("--mcmc-steps", type=_positive_int, default=4000,
                     help="cap on MCMC steps, burn-in included (default 4000; min 100)")
     fi.add_argument("--seed", type=_seed, default=0, help="seed of starts, subsample and sampler (default 0)")
+    fi.add_argument("--save-model", default=None, metavar="FILE",
+                    help="write the fitted model as JSON (read by matfit export and matfit render)")
+    fi.add_argument("--export", nargs=2, default=None, metavar=("FORMAT", "FILE"),
+                    help=f"export the fitted material: FORMAT one of {', '.join(targets)}")
     fi.set_defaults(func=_cmd_fit)
+
+    ex = sub.add_parser("export", help="export a fitted model (model.json or report.json) to a renderer's format")
+    ex.add_argument("fit", help="model document: --save-model output, or a report's model.json / report.json")
+    ex.add_argument("--to", required=True, choices=targets, help="target format")
+    ex.add_argument("-o", "--output", required=True, help="output file")
+    ex.set_defaults(func=_cmd_export)
+
+    re_ = sub.add_parser("render", help="render a sphere of a fitted model (model.json or report.json)")
+    re_.add_argument("model", help="model document (as for export)")
+    re_.add_argument("--env", default="sky", help="furnace, sky, or an environment map (.npy, .hdr, .exr)")
+    re_.add_argument("-o", "--output", required=True, help="output image (.png tone-mapped sRGB, .npy linear)")
+    re_.add_argument("--size", type=_positive_int, default=256, help="image size in pixels (default 256)")
+    re_.add_argument("--spp", type=_positive_int, default=64, help="samples per pixel (default 64)")
+    re_.add_argument("--strategy", default="mis", choices=["mis", "bsdf", "env"], help="sampling (default mis)")
+    re_.add_argument("--exposure", type=float, default=1.0, help="exposure of the PNG (default 1)")
+    re_.add_argument("--seed", type=_seed, default=0, help="seed (default 0)")
+    re_.set_defaults(func=_cmd_render)
 
     co = sub.add_parser("compare", help="compare model families on a hold-out split")
     co.add_argument("table", help="table or measured file (.npz .csv .binary .bsdf .alta)")

@@ -507,7 +507,7 @@ def _fmt(x, nd=5):
 
 
 def write_report(result, table, out_dir, posterior=None, truth=None, history=None, title=None, max_rows=MAX_ROWS,
-                 seed=0) -> dict:
+                 seed=0, preview=True) -> dict:
     """Write a fit report (``report.md``, ``report.json``, PNG figures) into ``out_dir``.
 
     Parameters
@@ -526,6 +526,12 @@ def write_report(result, table, out_dir, posterior=None, truth=None, history=Non
         Plotted in ``loss.png``; without it the objective reached by each start is plotted.
     title : str, optional;  max_rows : row cap for residual maps and colour difference;
     seed : seed of that row subset.
+    preview : bool
+        Render spheres under the built-in sky (:func:`matfit.render.render_sphere`): the
+        reference (the truth of a synthetic table) | the fit | their difference, in
+        ``preview.png``, with the images' mean CIEDE2000; without a reference model (a measured
+        table) the fitted sphere alone. The fitted model is also written as ``model.json``
+        (:func:`matfit.export.save_model`), which ``matfit export`` and ``matfit render`` read.
 
     Returns
     -------
@@ -636,8 +642,15 @@ def write_report(result, table, out_dir, posterior=None, truth=None, history=Non
         _plot_corner(out / "corner.png", post_samples, post_labels, fv, tvs)
         files["corner"] = "corner.png"
 
+    from .export import describe_model, save_model
+
+    save_model(out / "model.json", result.model, family=result.family)
+    files["model"] = "model.json"
+    previews = _previews(out, result.model, t_model, files) if preview else None
+
     summary = {
         "title": title or f"{result.family} fit",
+        "model": describe_model(result.model), "preview": previews,
         "family": result.family, "method": result.method, "loss": result.loss,
         "converged": bool(result.converged), "steps": int(result.steps), "wall_time_s": float(result.wall_time),
         "warnings": list(getattr(result, "warnings", [])),
@@ -665,6 +678,31 @@ def _history_json(history):
     if isinstance(history[0], (list, tuple, np.ndarray)):
         return [np.asarray(h, float).tolist() for h in history]
     return [np.asarray(history, float).tolist()]
+
+
+#: Size and samples per pixel of the report's preview spheres.
+PREVIEW_SIZE, PREVIEW_SPP = 128, 32
+
+
+def _previews(out, model, reference, files):
+    """Render ``preview.png`` (reference | fitted | 4 x |difference|, or the fitted sphere alone)."""
+    from .render import image_ciede2000, render_sphere, save_png
+
+    if model.channels not in (1, 3):
+        return {"skipped": f"{model.channels} channels (previews need 1 or 3)"}
+    fitted = render_sphere(model, "sky", size=PREVIEW_SIZE, spp=PREVIEW_SPP)
+    info = {"environment": "sky", "size": PREVIEW_SIZE, "spp": PREVIEW_SPP}
+    if reference is not None and getattr(reference, "channels", 0) in (1, 3):
+        ref = render_sphere(reference, "sky", size=PREVIEW_SIZE, spp=PREVIEW_SPP)
+        info["ciede2000_mean"] = image_ciede2000(ref, fitted)
+        info["panels"] = ["truth", "fitted", "4 x |difference|"]
+        img = np.concatenate([ref, fitted, 4 * np.abs(ref - fitted)], axis=1)
+    else:
+        info["panels"] = ["fitted"]
+        img = fitted
+    save_png(out / "preview.png", img)
+    files["preview"] = "preview.png"
+    return info
 
 
 def _write_markdown(path, s, table, result, has_truth, has_post, files):
@@ -722,5 +760,12 @@ def _write_markdown(path, s, table, result, has_truth, has_post, files):
     L += ["![loss](loss.png)", ""]
     if "corner" in files:
         L += ["Posterior:", "", "![corner](corner.png)", ""]
-    L += ["Numbers: `report.json`.", ""]
+    pv = s.get("preview")
+    if pv and "preview" in files:
+        what = " | ".join(pv["panels"])
+        cd2 = f"; mean CIEDE2000 of the two spheres {pv['ciede2000_mean']:.2f}" if "ciede2000_mean" in pv else (
+            "; a measured table has no sphere of its own until a tabulated-measurement model exists")
+        L += [f"Preview under the built-in sky ({pv['size']} px, {pv['spp']} spp, `matfit.render`): {what}{cd2}.", "",
+              "![preview](preview.png)", ""]
+    L += ["Numbers: `report.json`. The fitted model: `model.json` (`matfit export model.json --to gltf -o m.gltf`).", ""]
     Path(path).write_text("\n".join(L))

@@ -68,7 +68,7 @@ def to_mitsuba_xml(model) -> ExportResult:
     --------
     >>> from matfit.models import Lambert
     >>> print(to_mitsuba_xml(Lambert([0.5, 0.4, 0.3])).content)
-    <bsdf type="diffuse" id="matfit">
+    <bsdf version="3.0.0" type="diffuse" id="matfit">
         <rgb name="reflectance" value="0.5, 0.4, 0.3"/>
     </bsdf>
     """

@@ -4,9 +4,10 @@
 matfit model       Mitsuba 3 plugin                                             mapping
 =================  ===========================================================  ==========
 Lambert            ``diffuse`` (reflectance)                                    exact
-RoughConductor     ``roughconductor`` (alpha / alpha_u, alpha_v; eta, k)        exact (GGX, Beckmann; separable Smith)
+RoughConductor     ``roughconductor`` (alpha / alpha_u, alpha_v; eta, k)        exact (GGX, separable Smith);
+                                                                                Beckmann approximate
 SmoothConductor    ``conductor`` (eta, k)                                       exact
-RoughDielectric    ``roughdielectric`` (alpha, int_ior = eta, ext_ior = 1)      exact (GGX, Beckmann)
+RoughDielectric    ``roughdielectric`` (alpha, int_ior = eta, ext_ior = 1)      exact (GGX)
 SmoothDielectric   ``dielectric`` (int_ior = eta, ext_ior = 1)                  exact
 Plastic            ``plastic`` / ``roughplastic`` (diffuse_reflectance, alpha,  approximate: Mitsuba's own
                    int_ior, nonlinear = true)                                   internal-reflectance terms
@@ -48,6 +49,8 @@ def _alpha(d, m, where, mapping, exact=True, note=""):
     if m.distribution not in _DISTRIBUTIONS:
         return False
     d["distribution"] = _DISTRIBUTIONS[m.distribution]
+    if m.distribution == "beckmann" and exact:
+        exact, note = False, "Mitsuba's Beckmann masking is a rational approximation of Smith's (differences up to ~0.5 %)"
     if m.alpha_y is None:
         d["alpha"] = _num(m.alpha)
         mapping.append(ParamMapping(f"{where}alpha", d["alpha"], "alpha", exact, note))
@@ -157,7 +160,8 @@ def approximate_mitsuba(model):
 def to_xml(d, indent=1, name=None):
     """Mitsuba scene XML for a ``load_dict`` dict of a BSDF."""
     pad = "    " * indent
-    head = f'{pad}<bsdf type="{d["type"]}"' + (f' id="{name}"' if name else "") + ">"
+    head = (f'{pad}<bsdf' + (' version="3.0.0"' if indent == 0 else "") + f' type="{d["type"]}"'
+            + (f' id="{name}"' if name else "") + ">")
     lines = [head]
     for k, v in d.items():
         if k == "type":

@@ -92,9 +92,12 @@ def _material(name, m, mapping, notes, where=""):
                 "alpha": float(np.clip(np.asarray(m.alpha), 2e-3, 1.4)), "eta": np.clip(np.asarray(m.eta), 0.06, 7.9),
                 "k": np.clip(np.asarray(m.k), 0.0, 11.9)}) if m.alpha_y is None else RoughConductor(
                 m.alpha, m.eta, m.k, masking="height_correlated", alpha_y=m.alpha_y)
+            err = relative_rmse(m, src)
+            if m.alpha_y is None and not where:
+                notes.append(Fidelity(err, N_PAIRS, "fitted"))
             notes.append(f"pbrt's conductor is GGX with height-correlated masking; the model ({m.distribution}, "
                          f"{m.masking}) was {'fitted by one' if m.alpha_y is None else 'mapped to one'}: relative RMSE "
-                         f"{relative_rmse(m, src):.3%}")
+                         f"{err:.3%}")
         how, note = ("alpha", "") if exact else ("fitted", "fitted height-correlated GGX")
         mapping += [ParamMapping(where + "roughness", _vals(src.alpha)[0], how, exact, note),
                     ParamMapping(where + "eta", _vals(src.eta), how.replace("alpha", "eta"), exact, note),
@@ -165,7 +168,7 @@ def to_pbrt(model) -> ExportResult:
     Examples
     --------
     >>> from matfit.models import Lambert
-    >>> print(to_pbrt(Lambert([0.5, 0.4, 0.3])).content)
+    >>> print(to_pbrt(Lambert([0.5, 0.4, 0.3])).content, end="")
     # matfit export: Lambert (exact)
     MakeNamedMaterial "matfit" "string type" "diffuse" "rgb reflectance" [ 0.5 0.4 0.3 ]
     """
@@ -175,7 +178,6 @@ def to_pbrt(model) -> ExportResult:
     lines = _material("matfit", model, mapping, notes)
     exact = all(p.exact for p in mapping)
     text = "\n".join([f"# matfit export: {type(model).__name__} ({'exact' if exact else 'approximate'})"] + lines) + "\n"
-    fid = None
-    if isinstance(model, RoughConductor) and not exact and model.alpha_y is None:
-        fid = Fidelity(float(notes[-1].rsplit(" ", 1)[-1].rstrip("%")) / 100, N_PAIRS, "fitted")
-    return ExportResult("pbrt", text, mapping, model, fid, notes)
+    fids = [n for n in notes if isinstance(n, Fidelity)]
+    notes = [n for n in notes if not isinstance(n, Fidelity)]
+    return ExportResult("pbrt", text, mapping, model, fids[0] if fids else None, notes)

@@ -29,6 +29,11 @@ class AbstractBSDF(eqx.Module):
     is_delta: ClassVar[bool] = False
 
     @property
+    def transmits(self) -> bool:
+        """True when the model transmits light (``eval`` can be non-zero for ``wi`` below the surface)."""
+        return False
+
+    @property
     def has_delta_lobe(self) -> bool:
         """True when some of the model's energy is in a Dirac lobe (sampled, never evaluated)."""
         return self.is_delta

@@ -64,6 +64,10 @@ class Blend(AbstractBSDF):
         return self.a.has_delta_lobe or self.b.has_delta_lobe
 
     @property
+    def transmits(self):
+        return self.a.transmits or self.b.transmits
+
+    @property
     def pair_kernels(self):
         return self.a.pair_kernels and self.b.pair_kernels
 

@@ -70,6 +70,10 @@ class RoughDielectric(AbstractMicrofacetBSDF):
 
     eta: jnp.ndarray
 
+    @property
+    def transmits(self):
+        return True
+
     def __init__(self, alpha, eta, distribution="ggx", masking="separable", alpha_y=None, sampling="visible"):
         self._init_microfacet("RoughDielectric", alpha, alpha_y, distribution, masking, sampling)
         check_range("RoughDielectric", "eta", eta, 0.0, lo_open=True)

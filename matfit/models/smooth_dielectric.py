@@ -40,6 +40,10 @@ class SmoothDielectric(AbstractBSDF):
     is_delta = True
     eta: jnp.ndarray
 
+    @property
+    def transmits(self):
+        return True
+
     def __init__(self, eta):
         check_range("SmoothDielectric", "eta", eta, 0.0, lo_open=True)
         self.eta = as_param(eta)
