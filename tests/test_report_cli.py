@@ -132,8 +132,15 @@ def test_report_contents(cmp_lambertian, lambertian, tmp_path):
     assert 0 <= cd["delta_e_mean_appearance"] < 1.0 and cd["delta_e_rows_median"] < 2.0
     md = (out / "report.md").read_text()
     for needle in ("| albedo[0] |", "![lobes](lobes.png)", "![residuals](residuals.png)", "![corner](corner.png)",
-                   "CIEDE2000", "truth"):
+                   "CIEDE2000", "truth", "![preview](preview.png)"):
         assert needle in md, needle
+    # preview: truth | fitted | difference, three 128-px spheres side by side; the fit looks like the truth
+    assert (out / "preview.png").read_bytes()[:8] == PNG_MAGIC
+    assert j["preview"]["panels"][:2] == ["truth", "fitted"] and j["preview"]["ciede2000_mean"] < 2.0
+    from matfit.export import load_model
+
+    assert type(load_model(out / "model.json")).__name__ == "Lambert"
+    assert type(load_model(out / "report.json")).__name__ == "Lambert"
 
 
 def test_report_history_and_no_truth(cmp_glossy, glossy, tmp_path):
@@ -161,6 +168,29 @@ def test_cli_fit_npz_with_report(glossy, cmp_glossy, tmp_path, capsys):
     assert (rep / "lobes.png").exists() and (rep / "report.md").exists()
 
 
+def test_cli_fit_export_and_render(glossy, tmp_path, capsys):
+    path = tmp_path / "gold.npz"
+    save(path, glossy)
+    xml, fitj = tmp_path / "gold.xml", tmp_path / "fit.json"
+    rc, out, err = run_cli(["fit", path, "--model", "conductor", "--export", "mitsuba-xml", xml, "--save-model", fitj],
+                           capsys)
+    assert rc == 0, err
+    assert "export to mitsuba-xml: exact" in out and xml.read_text().lstrip().startswith("<bsdf")
+    gl = tmp_path / "gold.gltf"
+    rc, out, err = run_cli(["export", fitj, "--to", "gltf", "-o", gl], capsys)
+    assert rc == 0, err
+    doc = json.loads(gl.read_text())
+    assert doc["asset"]["version"] == "2.0" and doc["materials"][0]["pbrMetallicRoughness"]["metallicFactor"] == 1.0
+    assert "fidelity (fitted): relative RMSE" in out
+    png = tmp_path / "gold.png"
+    rc, out, err = run_cli(["render", fitj, "--env", "furnace", "--size", 16, "--spp", 4, "-o", png], capsys)
+    assert rc == 0, err
+    assert png.read_bytes()[:8] == PNG_MAGIC
+    npy = tmp_path / "gold.npy"
+    rc, out, err = run_cli(["render", fitj, "--size", 8, "--spp", 2, "-o", npy], capsys)
+    assert rc == 0 and np.load(npy).shape == (8, 8, 3)
+
+
 def test_cli_compare(lambertian, cmp_lambertian, tmp_path, capsys):
     path = tmp_path / "paint.csv"
     save(path, lambertian)
@@ -185,11 +215,20 @@ def test_cli_compare(lambertian, cmp_lambertian, tmp_path, capsys):
     (["compare", "{dir}/ok.npz", "--models", "lambert,nosuch"], "model must be one of"),
     (["compare", "{dir}/ok.npz", "--holdout", "1.5"], "fraction"),
     (["fit", "{dir}/ok.npz"], "--model"),
+    (["export", "{dir}/missing.json", "--to", "gltf", "-o", "{dir}/x.gltf"], "no such file"),
+    (["export", "{dir}/ok.npz", "--to", "gltf", "-o", "{dir}/x.gltf"], "not a JSON document"),
+    (["export", "{dir}/m.json", "--to", "blender", "-o", "{dir}/x"], "invalid choice"),
+    (["render", "{dir}/m.json", "--env", "{dir}/nosky.hdr", "-o", "{dir}/x.png"], "no such file"),
+    (["render", "{dir}/m.json", "--size", "0", "-o", "{dir}/x.png"], "positive integer"),
 ])
 def test_cli_errors_exit_2_with_one_line(argv, needle, lambertian, tmp_path, capsys):
     save(tmp_path / "ok.npz", lambertian.select(np.arange(3)))  # 3 rows x 3 channels: a tiny table
     (tmp_path / "table.txt").write_text("1 2 3\n")
     (tmp_path / "bad.npz").write_bytes(b"not a zip archive")
+    from matfit.export import save_model
+    from matfit.models import Lambert
+
+    save_model(tmp_path / "m.json", Lambert(0.5))
     rc, out, err = run_cli([a.format(dir=tmp_path) for a in argv], capsys)
     assert rc == 2
     lines = err.strip().splitlines()
