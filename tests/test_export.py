@@ -178,6 +178,8 @@ def test_gltf_approximates_a_conductor_by_a_fitted_metal():
     r = to_gltf(RoughConductor(0.2, *GOLD))
     assert not r.exact and r.fidelity.method == "fitted"
     assert r.fidelity.relative_rmse < 0.03
+    # the spheres of the model and of its glTF stand-in look alike (CIEDE2000 ~1 is barely visible)
+    assert r.fidelity.ciede2000 is not None and r.fidelity.ciede2000 < 2.0
     pbr = r.content["materials"][0]["pbrMetallicRoughness"]
     assert pbr["metallicFactor"] == 1.0
     # the fitted F0 is close to gold's normal-incidence reflectance (red > green > blue)

@@ -9,12 +9,12 @@ written as a matfit model, is fitted to the model over the hemisphere with matfi
 """
 
 from ._api import EXPORTERS, export, to_gltf, to_materialx, to_mitsuba, to_mitsuba_xml, to_pbrt
-from ._fidelity import fit_target, hemisphere_pairs, relative_rmse
+from ._fidelity import fit_target, hemisphere_pairs, measure, relative_rmse
 from ._model_file import describe_model, load_model, model_from_description, save_model
 from ._result import ExportResult, Fidelity, ParamMapping
 
 __all__ = [
     "EXPORTERS", "export", "to_mitsuba", "to_mitsuba_xml", "to_pbrt", "to_gltf", "to_materialx",
-    "ExportResult", "Fidelity", "ParamMapping", "fit_target", "hemisphere_pairs", "relative_rmse",
+    "ExportResult", "Fidelity", "ParamMapping", "fit_target", "hemisphere_pairs", "measure", "relative_rmse",
     "describe_model", "model_from_description", "save_model", "load_model",
 ]

@@ -5,8 +5,8 @@ from __future__ import annotations
 from ..errors import ParameterError
 from ..models import AbstractBSDF
 from . import _mitsuba
-from ._fidelity import fit_target, relative_rmse
-from ._result import ExportResult, Fidelity, ParamMapping
+from ._fidelity import fit_target, measure
+from ._result import ExportResult, ParamMapping
 
 
 def _check(model, owner):
@@ -48,17 +48,11 @@ def to_mitsuba(model) -> ExportResult:
         got = _mitsuba.exact_mitsuba(target)
         got = (got[0], [ParamMapping(m.target, m.value, "fitted", False, "fitted to the model over the hemisphere")
                         for m in got[1]])
-        fid = Fidelity(relative_rmse(model, target), _n(), "fitted")
+        fid = measure(model, target)
         notes.append(f"Mitsuba 3 has no plugin for {type(model).__name__}: a {type(target).__name__} fitted to it")
     elif not all(m.exact for m in got[1]):
         notes.append("mapped one to one; Mitsuba evaluates its own form of the terms marked approximate")
     return ExportResult("mitsuba", got[0], got[1], target, fid, notes)
-
-
-def _n():
-    from ._fidelity import N_PAIRS
-
-    return N_PAIRS
 
 
 def to_mitsuba_xml(model) -> ExportResult:

@@ -98,3 +98,28 @@ def fit_target(source, family, init=None, fixed=None, n=N_PAIRS, seed=0, channel
                   channels="rgb" if C == 3 else ("mono" if C == 1 else [f"c{i}" for i in range(C)]))
     r = fit(table, model=family, init=init, fixed=fixed, starts=2)
     return r.model
+
+
+#: Size and samples per pixel of the spheres compared by :func:`measure`.
+SPHERE_SIZE, SPHERE_SPP = 64, 32
+
+
+def measure(source, target, method="fitted", err=None):
+    """The :class:`~matfit.export.Fidelity` of ``target`` standing for ``source``: the relative
+    RMSE over the hemisphere and the mean CIEDE2000 of the two models' spheres rendered under the
+    built-in sky (same seed, so that most of the sampling noise cancels).
+
+    Examples
+    --------
+    >>> from matfit.models import Lambert
+    >>> f = measure(Lambert(0.5), Lambert(0.5))
+    >>> f.relative_rmse, f.ciede2000
+    (0.0, 0.0)
+    """
+    from ..render import image_ciede2000, render_sphere
+    from ._result import Fidelity
+
+    err = relative_rmse(source, target) if err is None else err
+    a = render_sphere(source, "sky", size=SPHERE_SIZE, spp=SPHERE_SPP)
+    b = render_sphere(target, "sky", size=SPHERE_SIZE, spp=SPHERE_SPP)
+    return Fidelity(float(err), N_PAIRS, method, image_ciede2000(a, b))

@@ -22,8 +22,8 @@ from ..errors import ParameterError
 from ..fresnel import fresnel_conductor
 from ..models import GltfPBR, Lambert, Layered, Plastic, RoughConductor, SmoothConductor
 from ._model_file import plain_numbers
-from ._fidelity import N_PAIRS, fit_target, relative_rmse
-from ._result import ExportResult, Fidelity, ParamMapping
+from ._fidelity import fit_target, measure
+from ._result import ExportResult, ParamMapping
 
 EXTENSIONS = ("KHR_materials_ior", "KHR_materials_specular", "KHR_materials_clearcoat")
 
@@ -127,7 +127,7 @@ def gltf_target(model):
                              "conductor and blends of rough models")
     fam, init = plan
     t = fit_target(model, fam, init=init, channels=3)
-    fid = Fidelity(relative_rmse(model, t), N_PAIRS, "fitted")
+    fid = measure(model, t)
     return t, False, fid, [f"{type(model).__name__} approximated by the glTF BRDF fitted to it ({fam.doc})"]
 
 

@@ -26,7 +26,6 @@ import functools
 
 import numpy as np
 
-from ..errors import ParameterError
 from ..models import (Blend, Lambert, Layered, Plastic, RoughConductor, RoughDielectric, SmoothConductor,
                       SmoothDielectric)
 from ._model_file import plain_numbers

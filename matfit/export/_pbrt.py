@@ -32,7 +32,7 @@ import numpy as np
 from ..errors import ParameterError
 from ..models import (AbstractBSDF, Blend, Lambert, Layered, Plastic, RoughConductor, RoughDielectric, SmoothConductor,
                       SmoothDielectric)
-from ._fidelity import N_PAIRS, fit_target, relative_rmse
+from ._fidelity import fit_target, measure, relative_rmse
 from ._model_file import plain_numbers
 from ._result import ExportResult, Fidelity, ParamMapping
 
@@ -94,7 +94,7 @@ def _material(name, m, mapping, notes, where=""):
                 m.alpha, m.eta, m.k, masking="height_correlated", alpha_y=m.alpha_y)
             err = relative_rmse(m, src)
             if m.alpha_y is None and not where:
-                notes.append(Fidelity(err, N_PAIRS, "fitted"))
+                notes.append(measure(m, src, err=err))
             notes.append(f"pbrt's conductor is GGX with height-correlated masking; the model ({m.distribution}, "
                          f"{m.masking}) was {'fitted by one' if m.alpha_y is None else 'mapped to one'}: relative RMSE "
                          f"{err:.3%}")
