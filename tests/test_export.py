@@ -127,13 +127,13 @@ def _gltf_reference(wo, wi, c, metallic, alpha, ior, ws, cs, cc, cc_alpha):
     def spec(a):
         a2 = a * a
         D = a2 / (np.pi * (h[:, 2:3] ** 2 * (a2 - 1) + 1) ** 2)
-        V = 1 / ((nl + np.sqrt(a2 + (1 - a2) * nl**2)) * (nv + np.sqrt(a2 + (1 - a2) * nv**2)))
+        V = 0.5 / (nv * np.sqrt(a2 + (1 - a2) * nl**2) + nl * np.sqrt(a2 + (1 - a2) * nv**2))  # height-correlated
         return V * D
 
     c, cs = np.asarray(c), np.asarray(cs)
     f0 = np.minimum(((ior - 1) / (ior + 1)) ** 2 * cs, 1) * ws
     F = f0 + (ws - f0) * (1 - vh) ** 5
-    diel = (1 - F) * c / np.pi + F * spec(alpha)
+    diel = (1 - F.max(axis=1, keepdims=True)) * c / np.pi + F * spec(alpha)
     metal = (c + (1 - c) * (1 - vh) ** 5) * spec(alpha)
     base = (1 - metallic) * diel + metallic * metal
     Fc = cc * (0.04 + 0.96 * (1 - nv) ** 5)
@@ -177,7 +177,7 @@ def test_gltf_loads_with_pygltflib_and_maps_exactly_what_it_can():
 def test_gltf_approximates_a_conductor_by_a_fitted_metal():
     r = to_gltf(RoughConductor(0.2, *GOLD))
     assert not r.exact and r.fidelity.method == "fitted"
-    assert r.fidelity.relative_rmse < 0.03
+    assert r.fidelity.relative_rmse < 0.06  # Schlick's F0 and glTF's height-correlated masking
     # the spheres of the model and of its glTF stand-in look alike (CIEDE2000 ~1 is barely visible)
     assert r.fidelity.ciede2000 is not None and r.fidelity.ciede2000 < 2.0
     pbr = r.content["materials"][0]["pbrMetallicRoughness"]

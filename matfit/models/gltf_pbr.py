@@ -8,15 +8,16 @@ any of its own models (:mod:`matfit.export`) and measure how close the glTF mate
 :math:`s(f_0, f_{90}) = f_0 + (f_{90} - f_0)(1 - |\omega_o\cdot h|)^5` (Schlick):
 
 .. math::
-    f_{diel} &= (1 - F_d)\,\frac{c}{\pi} + F_d\,S_\alpha,\qquad
+    f_{diel} &= (1 - \max_c F_d)\,\frac{c}{\pi} + F_d\,S_\alpha,\qquad
       F_d = s\big(\min(f_0(\eta)\,c_s, 1)\,w_s,\ w_s\big),\quad f_0(\eta) = \left(\frac{\eta-1}{\eta+1}\right)^2\\
     f_{metal} &= s(c, 1)\,S_\alpha\\
     f_{base} &= (1 - m)\,f_{diel} + m\,f_{metal}\\
     f &= (1 - w_c F_c)\,f_{base} + w_c F_c\,S_{\alpha_c},\qquad F_c = 0.04 + 0.96\,(1 - |\cos\theta_o|)^5
 
 (:math:`m` metallic, :math:`w_s, c_s` the specular factor and colour, :math:`w_c` the clear coat
-factor; the coat's Fresnel reads the viewing angle to the coat's normal, as the clear coat
-extension specifies). Reflection only: zero when either direction is below the horizon.
+factor, :math:`\max_c` the largest colour channel; the coat's Fresnel reads the viewing angle to
+the coat's normal, as the clear coat extension specifies). :math:`S_\alpha` uses the
+height-correlated Smith masking of the specification's visibility term. Reflection only: zero when either direction is below the horizon.
 
 Sampling: a mixture of the cosine-weighted hemisphere, the specular lobe's visible normals and
 the coat lobe's, picked with probabilities proportional to ``(1 - m) / 2``, ``(1 + m) / 2`` and
@@ -32,7 +33,9 @@ specular : specular factor (KHR_materials_specular), [0, 1], default 1.
 specular_color : (..., C) specular colour factor, default 1.
 clearcoat : clear coat factor (KHR_materials_clearcoat), [0, 1], default 0.
 clearcoat_alpha : GGX width of the coat, ``clearcoatRoughnessFactor**2``, default 0.01.
-masking : Smith form of both lobes, "separable" (default) or "height_correlated".
+masking : Smith form of both lobes, "height_correlated" (default: the specification's V_GGX,
+    ``1 / (2 (|n.l| sqrt(a^2 + (1 - a^2)(n.v)^2) + |n.v| sqrt(a^2 + (1 - a^2)(n.l)^2)))``) or
+    "separable".
 
 References
 ----------
@@ -81,7 +84,7 @@ class GltfPBR(AbstractBSDF):
     masking: str = eqx.field(static=True)
 
     def __init__(self, base_color, metallic=0.0, alpha=0.25, ior=1.5, specular=1.0, specular_color=1.0, clearcoat=0.0,
-                 clearcoat_alpha=0.01, masking="separable"):
+                 clearcoat_alpha=0.01, masking="height_correlated"):
         check_range("GltfPBR", "base_color", base_color, 0.0, 1.0)
         check_range("GltfPBR", "metallic", metallic, 0.0, 1.0)
         check_range("GltfPBR", "alpha", alpha, 0.0, lo_open=True)
@@ -120,7 +123,8 @@ class GltfPBR(AbstractBSDF):
         f0 = ((self.ior - 1) / (self.ior + 1)) ** 2
         ws = self.specular[..., None]
         Fd = _schlick(jnp.minimum(f0[..., None] * self.specular_color, 1) * ws, ws, vh)
-        diel = (1 - Fd) * c / jnp.pi + Fd * spec
+        # KHR_materials_specular: the diffuse part loses the largest channel of the Fresnel term
+        diel = (1 - jnp.max(Fd, axis=-1, keepdims=True)) * c / jnp.pi + Fd * spec
         metal = _schlick(c, 1.0, vh) * spec
         m = self.metallic[..., None]
         f = (1 - m) * diel + m * metal
