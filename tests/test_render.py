@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from matfit.errors import DataFormatError, ParameterError
-from matfit.models import Lambert, Plastic, RoughConductor, RoughDielectric, SmoothDielectric
+from matfit.models import (Blend, CoatedConductor, GltfPBR, Lambert, Plastic, RoughConductor, RoughDielectric,
+                           SmoothDielectric)
 from matfit.render import image_ciede2000, render_sphere, sky_map
 from matfit.render._sphere import _frames
 
@@ -57,8 +58,11 @@ def test_furnace_error_falls_as_one_over_sqrt_spp():
 
 
 @pytest.mark.parametrize("model", [Lambert([0.7, 0.5, 0.3]), RoughConductor(0.3, [0.2, 0.9, 1.1], [3.9, 2.4, 2.2]),
-                                   Plastic([0.7, 0.2, 0.1], 0.15, 1.5), RoughDielectric(0.4, 1.5)],
-                         ids=["lambert", "conductor", "plastic", "dielectric"])
+                                   Plastic([0.7, 0.2, 0.1], 0.15, 1.5), RoughDielectric(0.4, 1.5),
+                                   Blend(Lambert([0.7, 0.5, 0.3]), RoughConductor(0.2, 0.2, 3.0), 0.5),
+                                   CoatedConductor(0.3, [0.2, 0.9, 1.1], [3.9, 2.4, 2.2], alpha_coat=0.1),
+                                   GltfPBR([0.8, 0.5, 0.2], 0.5, 0.2, clearcoat=0.5, clearcoat_alpha=0.05)],
+                         ids=["lambert", "conductor", "plastic", "dielectric", "blend", "car_paint", "gltf"])
 def test_bsdf_env_and_mis_sampling_agree_within_noise(model):
     size, spp = 24, 128
     inside, _ = _frames(size)
