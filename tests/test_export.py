@@ -114,6 +114,10 @@ def test_export_refuses_what_a_target_cannot_hold():
         export(Lambert(0.5), "blender")
     with pytest.raises(ParameterError, match="Dirac lobe"):
         to_gltf(SmoothDielectric(1.5))
+    with pytest.raises(ParameterError, match="transmits light"):  # not silently fitted on reflection only
+        to_gltf(RoughDielectric(0.3, 1.5))
+    with pytest.raises(ParameterError, match="transmits light"):
+        to_materialx(Blend(Lambert(0.5), RoughDielectric(0.3, 1.5), 0.5))
 
 
 # -- glTF -------------------------------------------------------------------------------------

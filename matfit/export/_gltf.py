@@ -77,7 +77,7 @@ def _plan(model):
         return fam["coated_metal"], {"base_color": _f0(np.asarray(model.base.eta) * eta_c, np.asarray(model.base.k) * eta_c),
                                      "alpha": float(np.clip(np.asarray(model.base.alpha), 3e-3, 0.99)),
                                      "clearcoat_alpha": a_c}
-    if model.has_delta_lobe:
+    if model.has_delta_lobe or model.transmits:
         return None
     return fam["general"], None
 
@@ -122,9 +122,10 @@ def gltf_target(model):
                                 "approximates the conductor's curve); not measured (a delta lobe)"]
     plan = _plan(model)
     if plan is None:
-        raise ParameterError(f"to_gltf: {type(model).__name__} has a Dirac lobe glTF's metallic-roughness model "
+        why = "transmits light" if model.transmits else "has a Dirac lobe"
+        raise ParameterError(f"to_gltf: {type(model).__name__} {why}, which the glTF metallic-roughness model "
                              "cannot represent; exports Lambert, GltfPBR, conductors, Plastic, Layered over a "
-                             "conductor and blends of rough models")
+                             "conductor and blends of rough reflective models")
     fam, init = plan
     t = fit_target(model, fam, init=init, channels=3)
     fid = measure(model, t)
