@@ -122,7 +122,7 @@ def gltf_target(model):
                                 "approximates the conductor's curve); not measured (a delta lobe)"]
     plan = _plan(model)
     if plan is None:
-        why = "transmits light" if model.transmits else "has a Dirac lobe"
+        why = "has a Dirac lobe" if model.has_delta_lobe else "transmits light"
         raise ParameterError(f"to_gltf: {type(model).__name__} {why}, which the glTF metallic-roughness model "
                              "cannot represent; exports Lambert, GltfPBR, conductors, Plastic, Layered over a "
                              "conductor and blends of rough reflective models")
