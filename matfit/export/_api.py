@@ -3,15 +3,9 @@
 from __future__ import annotations
 
 from ..errors import ParameterError
-from ..models import AbstractBSDF
 from . import _mitsuba
 from ._fidelity import fit_target, measure
-from ._result import ExportResult, ParamMapping
-
-
-def _check(model, owner):
-    if not isinstance(model, AbstractBSDF):
-        raise ParameterError(f"{owner}: model must be a matfit model, got {type(model).__name__}")
+from ._result import ExportResult, ParamMapping, check_model
 
 
 def _approx(owner, model, plan, supported):
@@ -40,7 +34,7 @@ def to_mitsuba(model) -> ExportResult:
     >>> r.content["type"], r.content["alpha"], r.exact
     ('roughconductor', 0.2, True)
     """
-    _check(model, "to_mitsuba")
+    check_model("to_mitsuba", model)
     got = _mitsuba.exact_mitsuba(model)
     fid, target, notes = None, model, []
     if got is None:

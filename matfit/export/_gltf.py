@@ -23,16 +23,13 @@ from ..fresnel import fresnel_conductor
 from ..models import GltfPBR, Lambert, Layered, Plastic, RoughConductor, SmoothConductor
 from ._model_file import plain_numbers
 from ._fidelity import fit_target, measure
-from ._result import ExportResult, ParamMapping
+from ._result import ExportResult, ParamMapping, check_model, rgb
 
 EXTENSIONS = ("KHR_materials_ior", "KHR_materials_specular", "KHR_materials_clearcoat")
 
 
 def _rgb(x):
-    a = np.broadcast_to(np.asarray(x, float).ravel(), (3,)) if np.asarray(x).size in (1, 3) else None
-    if a is None:
-        raise ParameterError(f"to_gltf: glTF colours have 3 channels, the model has {np.asarray(x).size}")
-    return plain_numbers(np.asarray(x).ravel() if np.asarray(x).size == 3 else np.repeat(np.asarray(x).ravel(), 3))
+    return rgb("to_gltf", x)
 
 
 def _f(x):
@@ -115,7 +112,7 @@ def gltf_target(model):
     if isinstance(model, GltfPBR):
         return model, True, None, []
     if isinstance(model, Lambert):
-        return GltfPBR(np.broadcast_to(np.asarray(model.reflectance), (3,)), 0.0, 1.0, specular=0.0), True, None, []
+        return GltfPBR(_rgb(model.reflectance), 0.0, 1.0, specular=0.0), True, None, []
     if isinstance(model, SmoothConductor):
         t = GltfPBR(_f0(model.eta, model.k), 1.0, 1e-4)
         return t, False, None, ["a mirror: baseColor is the normal-incidence Fresnel reflectance (Schlick "
@@ -152,10 +149,7 @@ def to_gltf(model) -> ExportResult:
     >>> r.content["materials"][0]["pbrMetallicRoughness"]["baseColorFactor"], r.exact
     ([0.5, 0.4, 0.3, 1.0], True)
     """
-    from ..models import AbstractBSDF
-
-    if not isinstance(model, AbstractBSDF):
-        raise ParameterError(f"to_gltf: model must be a matfit model, got {type(model).__name__}")
+    check_model("to_gltf", model)
     t, exact, fid, notes = gltf_target(model)
     mat = gltf_parameters(t)
     used = sorted(mat["extensions"])

@@ -15,11 +15,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import MatfitError, ParameterError
-from ..models import AbstractBSDF, GltfPBR, Lambert
+from ..errors import MatfitError
+from ..models import GltfPBR, Lambert
 from ._gltf import gltf_target
 from ._model_file import plain_numbers
-from ._result import ExportResult, ParamMapping
+from ._result import ExportResult, ParamMapping, check_model, rgb
 
 
 def _mx():
@@ -57,8 +57,7 @@ def to_materialx(model) -> ExportResult:
     >>> 'standard_surface' in r.content, r.exact
     (True, True)
     """
-    if not isinstance(model, AbstractBSDF):
-        raise ParameterError(f"to_materialx: model must be a matfit model, got {type(model).__name__}")
+    check_model("to_materialx", model)
     mx = _mx()
     doc = mx.createDocument()
     ss = doc.addNode("standard_surface", "matfit_shader", "surfaceshader")
@@ -73,12 +72,8 @@ def to_materialx(model) -> ExportResult:
         mapping.append(ParamMapping(name, v, source, exact, note))
 
     if isinstance(model, Lambert):
-        c = np.broadcast_to(np.asarray(model.reflectance).ravel(), (3,)) if np.asarray(model.reflectance).size in (1, 3) else None
-        if c is None:
-            raise ParameterError("to_materialx: MaterialX colours have 3 channels, the model has "
-                                 f"{np.asarray(model.reflectance).size}")
         put("base", 1.0, "1", True)
-        put("base_color", c, "albedo", True)
+        put("base_color", rgb("to_materialx", model.reflectance), "albedo", True)
         put("diffuse_roughness", 0.0, "0 (Lambert)", True)
         put("specular", 0.0, "0 (no specular layer)", True)
     else:
@@ -87,10 +82,10 @@ def to_materialx(model) -> ExportResult:
         if isinstance(model, GltfPBR):
             note = "standard_surface's layering and metal Fresnel differ from the glTF BRDF"
         put("base", 1.0, "1", False, note)
-        put("base_color", np.broadcast_to(np.asarray(t.base_color).ravel(), (3,)), "base_color", False, note)
+        put("base_color", rgb("to_materialx", t.base_color), "base_color", False, note)
         put("metalness", t.metallic, "metallic", False, note)
         put("specular", t.specular, "specular", False, note)
-        put("specular_color", np.broadcast_to(np.asarray(t.specular_color).ravel(), (3,)), "specular_color", False, note)
+        put("specular_color", rgb("to_materialx", t.specular_color), "specular_color", False, note)
         put("specular_roughness", np.sqrt(np.asarray(t.alpha, float)), "sqrt(alpha)", False, note)
         put("specular_IOR", t.ior, "ior", False, note)
         if float(np.asarray(t.clearcoat)) > 0:

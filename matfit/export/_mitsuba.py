@@ -29,7 +29,7 @@ import numpy as np
 from ..models import (Blend, Lambert, Layered, Plastic, RoughConductor, RoughDielectric, SmoothConductor,
                       SmoothDielectric)
 from ._model_file import plain_numbers
-from ._result import ParamMapping
+from ._result import ParamMapping, rgb
 
 _DISTRIBUTIONS = {"ggx": "ggx", "beckmann": "beckmann"}
 
@@ -41,7 +41,7 @@ def _num(x):
 
 def _colour(x):
     v = _num(x)
-    return v if isinstance(v, float) else {"type": "rgb", "value": v}
+    return v if isinstance(v, float) else {"type": "rgb", "value": rgb("to_mitsuba", v)}
 
 
 def _alpha(d, m, where, mapping, exact=True, note=""):

@@ -27,11 +27,6 @@ MODEL_CLASSES = {name: getattr(_models, name) for name in (
     "Blend", "StochasticLayered", "GltfPBR")}
 
 
-def _register(cls):
-    MODEL_CLASSES[cls.__name__] = cls
-    return cls
-
-
 def plain_numbers(a):
     """Python floats (nested lists for arrays) of the shortest decimal strings that read back as the same values (a float32
     0.4 is written 0.4, not 0.4000000059604645).
@@ -42,12 +37,6 @@ def plain_numbers(a):
     >>> plain_numbers(np.float32(0.4)), plain_numbers(np.array([0.1, 0.2], np.float32))
     (0.4, [0.1, 0.2])
     """
-    return _shortest(a)
-
-
-def _shortest(a):
-    """Nested lists of the shortest decimal strings that read back as the same values (a float32
-    0.4 is written 0.4, not 0.4000000059604645)."""
     a = np.asarray(a)
     if a.dtype.kind != "f":
         return a.astype(float).tolist()
@@ -91,7 +80,7 @@ def describe_model(model) -> dict:
             a = np.asarray(v)
             if not np.all(np.isfinite(a)):
                 raise ParameterError(f"describe_model: {cls.__name__}.{f.name} has non-finite values {a.tolist()}")
-            out[f.name] = _shortest(a)
+            out[f.name] = plain_numbers(a)
     return out
 
 

@@ -30,11 +30,11 @@ import functools
 import numpy as np
 
 from ..errors import ParameterError
-from ..models import (AbstractBSDF, Blend, Lambert, Layered, Plastic, RoughConductor, RoughDielectric, SmoothConductor,
+from ..models import (Blend, Lambert, Layered, Plastic, RoughConductor, RoughDielectric, SmoothConductor,
                       SmoothDielectric)
 from ._fidelity import fit_target, measure, relative_rmse
 from ._model_file import plain_numbers
-from ._result import ExportResult, Fidelity, ParamMapping
+from ._result import ExportResult, ParamMapping, check_model, rgb
 
 
 def _vals(x):
@@ -44,8 +44,7 @@ def _vals(x):
 
 
 def _rgb(name, x):
-    v = _vals(x)
-    v = v * 3 if len(v) == 1 else v
+    v = rgb("to_pbrt", x)
     return f'"rgb {name}" [ {" ".join(repr(t) for t in v)} ]'
 
 
@@ -75,8 +74,9 @@ def conductor_family():
         "pbrt-v4 conductor (Trowbridge-Reitz, height-correlated Smith)")
 
 
-def _material(name, m, mapping, notes, where=""):
-    """Lines of ``MakeNamedMaterial name`` for ``m`` (and its parts first, for ``mix``)."""
+def _material(name, m, mapping, notes, fids, where=""):
+    """Lines of ``MakeNamedMaterial name`` for ``m`` (and its parts first, for ``mix``); appends to
+    ``mapping``, ``notes`` and ``fids`` (the fidelity of a fitted top-level conductor)."""
     if isinstance(m, Lambert):
         mapping.append(ParamMapping(where + "reflectance", _vals(m.reflectance), "albedo", True))
         return [f'MakeNamedMaterial "{name}" "string type" "diffuse" {_rgb("reflectance", m.reflectance)}']
@@ -94,7 +94,7 @@ def _material(name, m, mapping, notes, where=""):
                 m.alpha, m.eta, m.k, masking="height_correlated", alpha_y=m.alpha_y)
             err = relative_rmse(m, src)
             if m.alpha_y is None and not where:
-                notes.append(measure(m, src, err=err))
+                fids.append(measure(m, src, err=err))
             notes.append(f"pbrt's conductor is GGX with height-correlated masking; the model ({m.distribution}, "
                          f"{m.masking}) was {'fitted by one' if m.alpha_y is None else 'mapped to one'}: relative RMSE "
                          f"{err:.3%}")
@@ -143,8 +143,8 @@ def _material(name, m, mapping, notes, where=""):
     if isinstance(m, Blend):
         if np.asarray(m.weight).size != 1:
             raise ParameterError("to_pbrt: a Blend with one weight per pixel cannot be written as one material")
-        lines = _material(name + "_a", m.a, mapping, notes, where + "a.") + _material(name + "_b", m.b, mapping, notes,
-                                                                                      where + "b.")
+        lines = (_material(name + "_a", m.a, mapping, notes, fids, where + "a.")
+                 + _material(name + "_b", m.b, mapping, notes, fids, where + "b."))
         mapping.append(ParamMapping(where + "amount", _vals(m.weight)[0], "weight", True))
         return lines + [f'MakeNamedMaterial "{name}" "string type" "mix" "string materials" [ "{name}_a" "{name}_b" ] '
                         f'{_float("amount", m.weight)}']
@@ -172,12 +172,9 @@ def to_pbrt(model) -> ExportResult:
     # matfit export: Lambert (exact)
     MakeNamedMaterial "matfit" "string type" "diffuse" "rgb reflectance" [ 0.5 0.4 0.3 ]
     """
-    if not isinstance(model, AbstractBSDF):
-        raise ParameterError(f"to_pbrt: model must be a matfit model, got {type(model).__name__}")
-    mapping, notes = [], []
-    lines = _material("matfit", model, mapping, notes)
+    check_model("to_pbrt", model)
+    mapping, notes, fids = [], [], []
+    lines = _material("matfit", model, mapping, notes, fids)
     exact = all(p.exact for p in mapping)
     text = "\n".join([f"# matfit export: {type(model).__name__} ({'exact' if exact else 'approximate'})"] + lines) + "\n"
-    fids = [n for n in notes if isinstance(n, Fidelity)]
-    notes = [n for n in notes if not isinstance(n, Fidelity)]
     return ExportResult("pbrt", text, mapping, model, fids[0] if fids else None, notes)

@@ -7,6 +7,26 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
+from ..errors import ParameterError
+from ..models import AbstractBSDF
+from ._model_file import plain_numbers
+
+
+def check_model(owner, model):
+    """A :class:`~matfit.errors.ParameterError` naming ``owner`` unless ``model`` is a matfit model."""
+    if not isinstance(model, AbstractBSDF):
+        raise ParameterError(f"{owner}: model must be a matfit model, got {type(model).__name__}")
+
+
+def rgb(owner, x):
+    """Three plain numbers for a colour of 1 (repeated) or 3 channels; an error naming ``owner`` else."""
+    a = np.asarray(x).ravel()
+    if a.size not in (1, 3):
+        raise ParameterError(f"{owner}: colours have 3 channels, the model has {a.size}")
+    return plain_numbers(np.repeat(a, 3) if a.size == 1 else a)
+
 
 @dataclass(frozen=True)
 class ParamMapping:

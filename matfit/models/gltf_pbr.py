@@ -52,7 +52,8 @@ import jax.numpy as jnp
 from .._math import COS_EPS, cosine_hemisphere, normalize, safe_div
 from ._base import AbstractBSDF
 from ._pairs import SoAPairs
-from ._params import as_channels, as_param, check_channels, check_directions, check_range, check_u
+from ..microfacet import MASKING_FORMS
+from ._params import as_channels, as_param, check_channels, check_choice, check_directions, check_range, check_u
 from .rough_conductor import RoughConductor
 
 
@@ -94,6 +95,7 @@ class GltfPBR(AbstractBSDF):
         check_range("GltfPBR", "clearcoat", clearcoat, 0.0, 1.0)
         check_range("GltfPBR", "clearcoat_alpha", clearcoat_alpha, 0.0, lo_open=True)
         check_channels("GltfPBR", base_color=base_color, specular_color=specular_color)
+        check_choice("GltfPBR", "masking", masking, MASKING_FORMS)
         self.base_color = base_color
         self.metallic = as_param(metallic)
         self.alpha = as_param(alpha)
@@ -103,7 +105,6 @@ class GltfPBR(AbstractBSDF):
         self.clearcoat = as_param(clearcoat)
         self.clearcoat_alpha = as_param(clearcoat_alpha)
         self.masking = masking
-        RoughConductor(1.0, 1.0, 0.0, masking=masking)  # checks the masking name
 
     @property
     def channels(self):
