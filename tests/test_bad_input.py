@@ -148,7 +148,7 @@ def test_composite_models_pass_masked_directions_to_components():
     (dict(channels=2.5), "channels must be a positive integer, got 2.5"),
     (dict(family=3), "model must be a family name (str) or a Family, got int"),
     (dict(family="phong"), "model must be one of ['car_paint', 'conductor', 'conductor_beckmann', 'dielectric', "
-                           "'lambert', 'plastic'], got 'phong'"),
+                           "'diffuse_specular', 'lambert', 'plastic'], got 'phong'"),
 ])
 def test_parametrization(kw, needle):
     args = {"family": "plastic", "channels": 3, **kw}

@@ -24,7 +24,7 @@ FORMAT_VERSION = 1
 #: The classes a model document may name.
 MODEL_CLASSES = {name: getattr(_models, name) for name in (
     "Lambert", "RoughConductor", "SmoothConductor", "RoughDielectric", "SmoothDielectric", "Plastic", "Layered",
-    "Blend", "StochasticLayered", "GltfPBR")}
+    "Blend", "StochasticLayered", "GltfPBR", "DiffuseSpecular")}
 
 
 def plain_numbers(a):

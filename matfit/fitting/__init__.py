@@ -1,6 +1,7 @@
 """Fitting model families to measurement tables: parameters, losses, solvers, uncertainty."""
 
-from .fit import METHODS, FitError, FitResult, fit, fit_batch, initial_guess, initial_guesses
+from .fit import (METHODS, BatchFit, FitError, FitResult, fit, fit_arrays, fit_batch, guesses_from_arrays, initial_guess,
+                  initial_guesses)
 from .losses import LOSSES, residuals
 from .methods import DEFAULT_METHOD, Method, get_method
 from .params import FAMILIES, Family, Param, Parametrization, get_family
@@ -9,6 +10,7 @@ __all__ = [
     "FAMILIES", "Family", "Param", "Parametrization", "get_family",
     "LOSSES", "residuals", "DEFAULT_METHOD", "Method", "get_method",
     "METHODS", "FitError", "FitResult", "fit", "fit_batch", "initial_guess", "initial_guesses",
+    "BatchFit", "fit_arrays", "guesses_from_arrays",
 ]
 from .mcmc import NOISE_MODES, LogProb, PosteriorResult, SamplingError, make_log_prob, sample_posterior
 

@@ -362,11 +362,29 @@ def initial_guesses(tables, par: Parametrization):
     M = stack([np.asarray(t.valid, bool) for t in tables])
     WO = stack([np.asarray(t.wo, float) for t in tables])
     WI = stack([np.asarray(t.wi, float) for t in tables])
+    return guesses_from_arrays(WO, WI, V, M, par, one=len(tables) == 1)
+
+
+def guesses_from_arrays(WO, WI, V, M, par: Parametrization, one=False):
+    """:func:`initial_guesses` of a stack of tables given as arrays: directions ``WO``, ``WI``
+    ``(B, N, 3)`` (broadcast views are fine: directions shared by every table cost no copy),
+    values ``V`` ``(B, N, C)`` and the valid rows ``M`` ``(B, N)``. ``one``: the stack is a single
+    table (its error messages say "the table").
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit.fitting import Parametrization, guesses_from_arrays
+    >>> wo = np.broadcast_to([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]], (4, 2, 3)); wi = wo[:, ::-1]
+    >>> g = guesses_from_arrays(wo, wi, np.full((4, 2, 3), 0.1), np.ones((4, 2), bool), Parametrization("lambert", 3))
+    >>> g["albedo"].shape
+    (4, 3)
+    """
+    V = np.asarray(V, float)
     empty = np.flatnonzero(~M.any(axis=1))
     if empty.size:
-        raise FitError("the table has no valid rows" if len(tables) == 1 else
-                       f"tables {empty[:10].tolist()} have no valid rows")
-    B = len(tables)
+        raise FitError("the table has no valid rows" if one else f"tables {empty[:10].tolist()} have no valid rows")
+    B = V.shape[0]
     rows = np.arange(B)
     floor = _percentile10(V, M)  # (B, C)
     mean = np.einsum("bnc->bn", V) / V.shape[2]  # (a mean over a short last axis is 3x slower)
@@ -389,7 +407,7 @@ def initial_guesses(tables, par: Parametrization):
         "albedo": np.clip(np.pi * floor, 0.01, 0.95),
         "alpha": alpha.copy(), "alpha_base": alpha, "alpha_coat": np.maximum(alpha / 2, 0.02),
         "eta": np.full(B, 1.5) if par.family.name in ("plastic", "dielectric") else ones.copy(),
-        "k": k.copy(), "eta_base": ones, "k_base": k, "eta_coat": np.full(B, 1.5),
+        "k": k.copy(), "eta_base": ones, "k_base": k, "eta_coat": np.full(B, 1.5), "f0": r0,
     }
     if par.family.name in _CONDUCTOR_DISTRIBUTION:
         # the Fresnel curve read off the table (matfit.fitting._conductor_guess): eta = 1 and the
@@ -688,29 +706,153 @@ def fit_batch(tables, model="plastic", method=DEFAULT_METHOD, loss="l2", fixed=N
     for i, t in enumerate(tables):
         if len(t) != len(t0) or t.n_channels != t0.n_channels:
             raise ParameterError(f"fit_batch: table {i} has shape ({len(t)}, {t.n_channels}), expected ({len(t0)}, {t0.n_channels})")
-    fixed_items = tuple(sorted((k, tuple(np.atleast_1d(np.asarray(v, float)).tolist())) for k, v in (fixed or {}).items()))
-    par, run, _, objective = _solver(model, t0.n_channels, fixed_items, tuple(tied), method, loss, None, 1.0,
-                          int(max_steps), float(rtol), float(atol))
-    # Stacked on the host and moved once; the data-driven guesses are mapped to z in one call.
-    check_memory("fit_batch", len(tables) * len(t0), t0.n_channels, len(column_groups(par)[0]) * starts, dtype)
-    stacked = tuple(jnp.asarray(np.stack(a), dtype=dtype) for a in zip(
-        *((t.wo, t.wi, t.values, t.effective_weight()) for t in tables)))
-    base = jax.vmap(par.z_from_theta)({k: jnp.asarray(v, float) for k, v in initial_guesses(tables, par).items()})
-    z0 = _screened_starts(objective, par, base.astype(stacked[0].dtype), starts, 0, stacked, batched=True)
-    # One block of tables per device (every CPU core with host devices, see matfit.parallel).
-    (z0, stacked), n = shard_batch((z0, stacked))
-    z, obj, _, _ = batched_run(run)(z0, stacked)
-    z, obj = z[:n], obj[:n]
-    best = jnp.argmin(obj, axis=1)
-    zb = jnp.take_along_axis(z, best[:, None, None], axis=1)[:, 0]
-    values, objective = np.asarray(par.theta_vector(zb)), np.asarray(jnp.min(obj, axis=1))
-    bad = ~(np.isfinite(values).all(axis=1) & np.isfinite(objective))
+    stacked = [np.stack(a) for a in zip(*((t.wo, t.wi, t.values, t.effective_weight()) for t in tables))]
+    res = fit_arrays(*stacked, model=model, method=method, loss=loss, fixed=fixed, tied=tied, starts=starts,
+                     max_steps=max_steps, rtol=rtol, atol=atol, dtype=dtype, valid=np.stack([t.valid for t in tables]),
+                     uncertainty=False, where="fit_batch")
+    bad = ~(np.isfinite(res.values).all(axis=1) & np.isfinite(res.objective))
     if bad.any():
         idx = np.flatnonzero(bad)
         raise FitError(f"fit_batch: {idx.size} of {len(tables)} tables ended with non-finite parameters or objective "
                        f"(tables {idx[:10].tolist()}{' ...' if idx.size > 10 else ''}); fit them one by one with fit() "
                        "to see why")
-    return values, objective, par.labels
+    return res.values, res.objective, res.labels
+
+
+@dataclass(frozen=True)
+class BatchFit:
+    """Per-table results of :func:`fit_arrays` (leading axis: the tables)."""
+
+    labels: list
+    values: np.ndarray  # (B, p) natural parameter values, in the order of labels
+    stderr: np.ndarray  # (B, p) Gauss-Newton standard errors (NaN when not computed)
+    objective: np.ndarray  # (B,) 0.5 * sum of squared residuals
+    steps: np.ndarray  # (B,) solver iterations
+    converged: np.ndarray  # (B,) bool
+    n_residuals: np.ndarray  # (B,) residuals with a nonzero weight
+
+
+def _check_stack(where, wo, wi, values, weight, valid):
+    values = np.asarray(values)
+    if values.ndim != 3:
+        raise ParameterError(f"{where}: values must be (B, N, C), found shape {values.shape}")
+    B, N, C = values.shape
+    dirs = []
+    for name, d in (("wo", wo), ("wi", wi)):
+        d = np.asarray(d)
+        if d.shape not in ((N, 3), (B, N, 3)):
+            raise ParameterError(f"{where}: {name} must be (N, 3) or (B, N, 3) = ({N}, 3) or ({B}, {N}, 3), "
+                                 f"found shape {d.shape}")
+        if not np.all(np.isfinite(d)):
+            raise ParameterError(f"{where}: {name} has non-finite directions")
+        dirs.append(d)
+    if weight is not None and np.shape(weight) != values.shape:
+        raise ParameterError(f"{where}: weight must have the shape of values {values.shape}, found {np.shape(weight)}")
+    if valid is not None and np.shape(valid) != (B, N):
+        raise ParameterError(f"{where}: valid must be (B, N) = ({B}, {N}), found {np.shape(valid)}")
+    return dirs[0], dirs[1], values
+
+
+@functools.lru_cache(maxsize=16)
+def _batch_programs(run_full, par, shared):
+    """Jitted ``vmap`` of a solver's ``run_full`` over tables (directions shared or per table) and
+    of the natural values with the diagonal of their Jacobian in ``z``."""
+    d_ax = None if shared else 0
+    run = jax.jit(jax.vmap(run_full, in_axes=(0, (d_ax, d_ax, 0, 0))))
+    post = jax.jit(jax.vmap(lambda z: (par.theta_vector(z), jnp.diag(jax.jacfwd(par.theta_vector)(z)))))
+    return run, post
+
+
+def fit_arrays(wo, wi, values, weight=None, *, model="plastic", method=DEFAULT_METHOD, loss="l2", fixed=None,
+               tied=(), starts=1, max_steps=128, rtol=1e-8, atol=1e-10, dtype=None, valid=None, known_sigma=False,
+               uncertainty=True, where="fit_arrays") -> BatchFit:
+    """Fit one family to a stack of B small tables given as arrays, in one vectorized call.
+
+    The core of :func:`fit_batch` and :func:`matfit.maps.fit_map`: every table gets its own
+    data-driven start (:func:`guesses_from_arrays`; ``starts - 1`` screened candidates more) and
+    its own solve, all in one compiled program; new values of the same shapes reuse it.
+
+    Parameters
+    ----------
+    wo, wi : array_like, (N, 3) shared by every table, or (B, N, 3)
+        Unit directions to the viewer and to the light.
+    values : array_like, (B, N, C)
+        Measured BSDF values (1/sr, without the cosine).
+    weight : array_like, (B, N, C), optional
+        Residual weights (``1 / sigma**2`` for known noise); 0 leaves a value out. Default 1.
+    model, method, loss, fixed, tied, starts, max_steps, rtol, atol, dtype
+        As in :func:`fit`.
+    valid : array_like of bool, (B, N), optional
+        Rows that may seed the data-driven start (default: rows with a nonzero weight).
+    known_sigma : bool
+        The weights are ``1 / sigma**2`` of the data's noise: standard errors are not rescaled by
+        the residual variance.
+    uncertainty : bool
+        Compute standard errors (the Gauss-Newton ``J^T J`` the solver returns with its solution).
+
+    Returns
+    -------
+    BatchFit
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit.fitting import fit_arrays
+    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
+    >>> values = np.array([0.1, 0.2])[:, None, None] * np.ones((2, 3, 3))  # two Lambertian tables
+    >>> r = fit_arrays(wo, wi, values, model="lambert")
+    >>> [round(float(a), 3) for a in r.values[:, 0] / np.pi]
+    [0.1, 0.2]
+    """
+    wo, wi, values = _check_stack(where, wo, wi, values, weight, valid)
+    B, N, C = values.shape
+    check_loss(loss, None)
+    check_solver_options(where, starts=starts, max_steps=max_steps, rtol=rtol, atol=atol, dtype=dtype)
+    if not get_method(method, where, model, loss).batched:
+        raise ParameterError(f"{where}: method {method!r} cannot fit tables in a batch; use one of "
+                             f"{[k for k, v in METHODS.items() if v.batched]}")
+    Parametrization(model, C, fixed, tied)
+    fixed_items = tuple(sorted((k, tuple(np.atleast_1d(np.asarray(v, float)).tolist())) for k, v in (fixed or {}).items()))
+    par, _, run_full, objective = _solver(model, C, fixed_items, tuple(tied), method, loss, None, 1.0, int(max_steps),
+                                          float(rtol), float(atol))
+    check_memory(where, B * N, C, len(column_groups(par)[0]) * starts, dtype)
+    w = np.ones(values.shape, values.dtype) if weight is None else np.asarray(weight)
+    ok_rows = np.any(w > 0, axis=2) if valid is None else np.asarray(valid, bool) & np.any(w > 0, axis=2)
+    shared = wo.ndim == 2 and wi.ndim == 2
+    WO = np.broadcast_to(wo, (B, N, 3)) if wo.ndim == 2 else wo
+    WI = np.broadcast_to(wi, (B, N, 3)) if wi.ndim == 2 else wi
+    guess = guesses_from_arrays(WO, WI, values, ok_rows, par, one=B == 1 and where == "fit")
+    dt = dtype if dtype is not None else jnp.result_type(float)
+    if shared:
+        dirs = (jnp.asarray(wo, dt), jnp.asarray(wi, dt))
+    else:
+        dirs = (jnp.asarray(WO, dt), jnp.asarray(WI, dt))
+    arrays = dirs + (jnp.asarray(values, dt), jnp.asarray(w, dt))
+    base = np.asarray(jax.vmap(par.z_from_theta)({k: jnp.asarray(v, float) for k, v in guess.items()}))
+    base = base.astype(np.dtype(dt))
+    if starts > 1:
+        full = (jnp.asarray(WO, dt), jnp.asarray(WI, dt)) + arrays[2:]
+        z0 = _screened_starts(objective, par, base, starts, 0, full, batched=True)
+    else:
+        z0 = jnp.asarray(base[:, None, :])
+    run, post = _batch_programs(run_full, par, shared)
+    z, obj, steps, ok, best, r, A, _ = run(z0, arrays)
+    best = np.asarray(best)
+    zb = jnp.take_along_axis(z, jnp.asarray(best)[:, None, None], axis=1)[:, 0]
+    vals, dtheta = (np.asarray(a) for a in post(zb))
+    pick = lambda a: np.take_along_axis(np.asarray(a), best[:, None], axis=1)[:, 0]  # noqa: E731
+    objective_b = pick(obj)
+    n_res = np.count_nonzero(w, axis=(1, 2))
+    se = np.full(vals.shape, np.nan)
+    if uncertainty:
+        inv_d = 1 / np.where(dtheta != 0, dtheta, np.inf)
+        At = np.asarray(A, float) * inv_d[:, :, None] * inv_d[:, None, :]
+        dof = np.maximum(n_res - par.size, 1)
+        s2 = np.ones(B) if known_sigma else 2 * objective_b.astype(float) / dof
+        cov = s2[:, None, None] * np.linalg.pinv(At, hermitian=True)
+        se = np.sqrt(np.clip(np.diagonal(cov, axis1=1, axis2=2), 0, None))
+    return BatchFit(labels=par.labels, values=vals, stderr=se, objective=objective_b, steps=pick(steps),
+                    converged=pick(ok).astype(bool), n_residuals=n_res)
 
 
 @functools.lru_cache(maxsize=16)

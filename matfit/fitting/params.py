@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import ParameterError
-from ..models import CoatedConductor, Lambert, Plastic, RoughConductor, RoughDielectric
+from ..models import CoatedConductor, DiffuseSpecular, Lambert, Plastic, RoughConductor, RoughDielectric
 
 
 @dataclass(frozen=True)
@@ -94,6 +94,12 @@ FAMILIES: dict[str, Family] = {
          Param("eta_coat", 1.05, 2.5, False, "coat index")),
         lambda p, C: CoatedConductor(p["alpha_base"], p["eta_base"], p["k_base"], p["alpha_coat"], p["eta_coat"]),
         "rough metal under a rough clear coat"),
+    "diffuse_specular": Family(
+        "diffuse_specular",
+        (Param("albedo", 0.0, 1.0, True, "diffuse albedo"), Param("f0", 0.0, 1.0, True, "specular F0 (Schlick)"),
+         Param("alpha", 1e-3, 1.5, False, "GGX width")),
+        lambda p, C: DiffuseSpecular(p["albedo"], p["f0"], p["alpha"]),
+        "Lambertian albedo plus a GGX lobe with Schlick's Fresnel (the texel model of captures)"),
 }
 
 

@@ -4,6 +4,7 @@ from ._base import AbstractBSDF
 from ._microfacet import AbstractMicrofacetBSDF
 from ._pairs import SoAPairs, half_vector, valid_reflection
 from .blend import Blend
+from .diffuse_specular import DiffuseSpecular
 from .gltf_pbr import GltfPBR
 from .lambert import Lambert
 from .layered import CoatedConductor, Layered
@@ -26,6 +27,7 @@ __all__ = [
     "Layered",
     "CoatedConductor",
     "Blend",
+    "DiffuseSpecular",
     "GltfPBR",
     "RoughConductor",
     "RoughDielectric",
