@@ -216,6 +216,36 @@ def _cmd_render(args):
     return 0
 
 
+def _cmd_fit_map(args):
+    import time
+
+    if args.num_processes > 1 or args.coordinator:
+        from .maps import initialize_processes
+
+        if not args.coordinator:
+            raise ValueError("--num-processes > 1 needs --coordinator HOST:PORT (the address of process 0)")
+        initialize_processes(args.coordinator, args.num_processes, args.process_id)
+    from .maps import fit_map, load_capture, write_maps
+
+    cap = load_capture(args.capture)
+    H, W = cap.shape
+    print(f"{args.capture}: {H}x{W} texels, {cap.n_images} images, {cap.n_channels} channels, directions "
+          f"{'shared' if cap.shared_directions else 'per texel'}; {int((~cap.valid).sum())} measurements unusable")
+    t0 = time.perf_counter()
+    res = fit_map(cap.wo, cap.wi, cap.values, model=args.model, valid=cap.valid, chunk=args.chunk,
+                  max_steps=args.max_steps, smooth=args.smooth, progress=not args.quiet)
+    import jax
+
+    if jax.process_index() == 0:  # every process holds the merged map; one writes it
+        index = write_maps(res, args.output, formats=tuple(args.formats.split(",")))
+        print(res.summary())
+        print(f"wrote {args.output}/ ({', '.join(sorted(index['params']))} maps, maps.json"
+              f"{', material.gltf' if 'gltf' in index else ''}) in {time.perf_counter() - t0:.1f} s")
+        for note in index.get("gltf_notes", []):
+            print(f"  glTF: {note}")
+    return 0
+
+
 def _cmd_compare(args):
     import json
 
@@ -334,6 +364,19 @@ def build_parser():
     re_.add_argument("--seed", type=_seed, default=0, help="seed (default 0)")
     re_.set_defaults(func=_cmd_render)
 
+    fm = sub.add_parser("fit-map", help="fit a model family to every texel of a capture (a folder with capture.json)")
+    fm.add_argument("capture", help="capture folder (images + capture.json or capture.toml)")
+    fm.add_argument("--model", default="diffuse_specular", choices=sorted(FAMILIES))
+    fm.add_argument("-o", "--output", required=True, help="output folder for the maps")
+    fm.add_argument("--formats", default="png,exr,gltf", help="comma-separated: png, exr, gltf (default: all)")
+    fm.add_argument("--chunk", type=_positive_int, default=16384, help="texels per solver call (default 16384)")
+    fm.add_argument("--max-steps", type=_positive_int, default=64)
+    fm.add_argument("--smooth", type=float, default=0.0, help="strength of the neighbour prior (default 0: off)")
+    fm.add_argument("--quiet", action="store_true", help="no progress bar")
+    fm.add_argument("--coordinator", default=None, help="HOST:PORT of process 0 for a multi-process run")
+    fm.add_argument("--num-processes", type=_positive_int, default=1)
+    fm.add_argument("--process-id", type=int, default=0)
+    fm.set_defaults(func=_cmd_fit_map)
     co = sub.add_parser("compare", help="compare model families on a hold-out split")
     co.add_argument("table", help="table or measured file (.npz .csv .binary .bsdf .alta)")
     co.add_argument("--models", default="lambert,conductor,plastic",

@@ -823,6 +823,9 @@ def fit_arrays(wo, wi, values, weight=None, *, model="plastic", method=DEFAULT_M
     WI = np.broadcast_to(wi, (B, N, 3)) if wi.ndim == 2 else wi
     guess = guesses_from_arrays(WO, WI, values, ok_rows, par, one=B == 1 and where == "fit")
     dt = dtype if dtype is not None else jnp.result_type(float)
+    if np.dtype(dt) == np.float64 and not jax.config.jax_enable_x64:
+        raise ParameterError(f"{where}: dtype float64 needs JAX's 64-bit mode (jax.config.update('jax_enable_x64', "
+                             "True) before any JAX work); use float32 or switch it on")
     if shared:
         dirs = (jnp.asarray(wo, dt), jnp.asarray(wi, dt))
     else:

@@ -1,0 +1,443 @@
+r"""Parameter maps: one fit per texel of a capture, in chunks of bounded memory.
+
+Every texel of an ``H x W`` capture is a small table of ``N`` measurements (one per image) at
+directions shared by all texels (distant light and camera) or its own (a flat sample under near
+lights). :func:`fit_map` fits a model family to every texel with the batched solver of
+:func:`matfit.fitting.fit_arrays`: texels are gathered into chunks of ``chunk`` texels (the last
+one padded to the same size, so one compiled program serves the whole map), each texel starts
+from its own data-driven guess, and the chunks' results are written into the maps as they come.
+Memory is the chunk's working set plus the output maps; ``values`` may be a ``numpy.memmap``,
+of which only the rows of the current chunk are read.
+
+Under JAX's multi-process runtime (``jax.distributed.initialize``, :func:`initialize_processes`)
+process ``i`` of ``P`` fits chunks ``i, i + P, i + 2P, ...`` and the chunks are gathered onto
+every process with :func:`jax.experimental.multihost_utils.process_allgather`; every chunk is
+computed by the same program whichever process runs it, so the merged map equals the
+one-process map texel for texel.
+
+Noise model: with ``sigma=None`` residuals are relative, :math:`(f - y) / (|y| + \epsilon)` (the
+``"relative"`` loss: camera noise grows with the signal, and the specular peak would otherwise
+outweigh the diffuse measurements by orders of magnitude), with the noise scale estimated from
+each texel's residuals; with ``sigma`` given (absolute, broadcast to ``values``) the weights are
+``1 / sigma**2`` and the standard errors use it as known.
+
+Smoothness prior (``smooth > 0``, off by default): each texel's estimate is pulled towards the
+mean of its 4 neighbours, weighted by its own precision: a few Jacobi sweeps of
+:math:`\theta = (\theta_0 / s^2 + \lambda\,\bar\theta_{nb}) / (1 / s^2 + \lambda)` with
+:math:`\theta_0, s` the texel's own fit and standard error (the Laplace approximation of its
+likelihood, per parameter), :math:`\lambda` = ``smooth`` in units of 1 / parameter^2. Noisy
+texels (large :math:`s`) follow their neighbours; well-measured ones keep their value.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import ParameterError
+from ..fitting import fit_arrays, get_family
+from ..fitting.params import Parametrization
+
+#: Texels per chunk by default: large enough that the batched solver's per-call overhead is
+#: small, small enough that a chunk's working set stays well under 1 GB.
+DEFAULT_CHUNK = 16384
+
+
+@dataclass(frozen=True)
+class MapResult:
+    """Per-texel results of :func:`fit_map`.
+
+    Attributes
+    ----------
+    family : str
+        The fitted family.
+    labels : list of str
+        Free parameters, flat (``albedo[0]``, ...), as in :class:`~matfit.fitting.FitResult`.
+    params : dict
+        Parameter name -> map, ``(H, W)`` for scalar parameters, ``(H, W, C)`` per channel
+        (fixed parameters included, broadcast); NaN where a texel was not fitted.
+    stderr : dict
+        Standard errors of the free parameters, same shapes (NaN where not fitted).
+    objective : (H, W)
+        Half the sum of squared residuals at the solution.
+    rel_rmse : (H, W)
+        Root mean square of the relative residuals ``(f - y) / y`` over the texel's measurements.
+    converged, at_bound, fitted : (H, W) bool
+        Solver convergence; some parameter within 0.1 % of its range's ends; texel fitted
+        (inside ``mask`` with more usable measurements than free parameters).
+    steps, n_measurements : (H, W) int
+    wall_time : float
+        Seconds of the whole call.
+    info : list of str
+    """
+
+    family: str
+    labels: list
+    params: dict
+    stderr: dict
+    objective: np.ndarray
+    rel_rmse: np.ndarray
+    converged: np.ndarray
+    at_bound: np.ndarray
+    fitted: np.ndarray
+    steps: np.ndarray
+    n_measurements: np.ndarray
+    wall_time: float
+    info: list = field(default_factory=list)
+
+    @property
+    def shape(self):
+        return self.fitted.shape
+
+    @property
+    def texels_per_second(self):
+        return float(self.fitted.sum()) / max(self.wall_time, 1e-12)
+
+    def model_at(self, row, col):
+        """The fitted model of texel ``(row, col)``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from matfit.maps import fit_map
+        >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
+        >>> r = fit_map(wo, wi, np.full((1, 2, 3, 3), 0.1), model="lambert")
+        >>> type(r.model_at(0, 1)).__name__
+        'Lambert'
+        """
+        fam = get_family(self.family)
+        C = next((v.shape[-1] for v in self.params.values() if v.ndim == 3), 1)
+        return fam.build({k: v[row, col] for k, v in self.params.items()}, C)
+
+    def summary(self) -> str:
+        """A few lines: texels fitted, converged, at a bound, median parameters and errors."""
+        n = int(self.fitted.sum())
+        lines = [f"{self.family} map {self.shape[0]}x{self.shape[1]}: {n} texels fitted in {self.wall_time:.1f} s "
+                 f"({self.texels_per_second:.0f} texels/s)",
+                 f"  converged {self.converged[self.fitted].mean():.1%}, at a bound {self.at_bound[self.fitted].mean():.1%}, "
+                 f"median relative RMSE {np.nanmedian(self.rel_rmse[self.fitted]):.3g}" if n else "  nothing fitted"]
+        for k, v in self.params.items():
+            sel = v[self.fitted] if n else v.reshape(-1)
+            se = self.stderr.get(k)
+            s = f"  {k:10s} median {np.nanmedian(sel, axis=0).round(4).tolist()}"
+            if se is not None and n:
+                s += f", median stderr {np.nanmedian(se[self.fitted], axis=0).round(5).tolist()}"
+            lines.append(s)
+        lines += [f"  note: {x}" for x in self.info]
+        return "\n".join(lines)
+
+
+def _check_inputs(wo, wi, values, mask, valid, sigma):
+    v = values if isinstance(values, np.ndarray) else np.asarray(values)
+    if v.ndim != 4:
+        raise ParameterError(f"fit_map: values must be (H, W, N, C), found shape {v.shape}")
+    if v.dtype.kind != "f":
+        raise ParameterError(f"fit_map: values must be floating point, found dtype {v.dtype}")
+    H, W, N, C = v.shape
+    dirs = []
+    for name, d in (("wo", wo), ("wi", wi)):
+        d = np.asarray(d)
+        if d.shape not in ((N, 3), (H, W, N, 3)):
+            raise ParameterError(f"fit_map: {name} must be (N, 3) = ({N}, 3) shared by every texel or (H, W, N, 3) = "
+                                 f"({H}, {W}, {N}, 3), found shape {d.shape}")
+        if not np.all(np.isfinite(d)):
+            raise ParameterError(f"fit_map: {name} has non-finite directions")
+        norm = np.linalg.norm(d, axis=-1)
+        if np.any(np.abs(norm - 1) > 1e-3):
+            raise ParameterError(f"fit_map: {name} must be unit vectors (lengths {norm.min():.4g}..{norm.max():.4g})")
+        dirs.append(d)
+    if mask is not None:
+        mask = np.asarray(mask)
+        if mask.shape != (H, W) or mask.dtype != bool:
+            raise ParameterError(f"fit_map: mask must be a boolean (H, W) = ({H}, {W}) array, found {mask.dtype} "
+                                 f"{mask.shape}")
+    if valid is not None:
+        valid = np.asarray(valid)
+        if valid.shape != (H, W, N) or valid.dtype != bool:
+            raise ParameterError(f"fit_map: valid must be a boolean (H, W, N) = ({H}, {W}, {N}) array, found "
+                                 f"{valid.dtype} {valid.shape}")
+    if sigma is not None:
+        s = np.asarray(sigma, float)
+        try:
+            np.broadcast_shapes(s.shape, v.shape)
+        except ValueError:
+            raise ParameterError(f"fit_map: sigma of shape {s.shape} does not broadcast to values {v.shape}") from None
+        if not np.all(np.isfinite(s)) or np.any(s <= 0):
+            raise ParameterError("fit_map: sigma must be finite and > 0")
+    return dirs[0], dirs[1], v, mask, valid
+
+
+def _progress_bar(progress, total):
+    if not progress:
+        return None
+    if callable(progress):
+        return progress
+    from tqdm.auto import tqdm
+
+    bar = tqdm(total=total, desc="fit-map", unit="texel", unit_scale=True, smoothing=0.3)
+
+    def update(done, total_, elapsed):
+        bar.update(done - bar.n)
+        if done >= total_:
+            bar.close()
+
+    return update
+
+
+def fit_map(wo, wi, values, model="diffuse_specular", mask=None, sigma=None, *, valid=None, fixed=None, tied=(),
+            chunk=DEFAULT_CHUNK, max_steps=64, smooth=0.0, dtype=None, progress=False) -> MapResult:
+    """Fit ``model`` to every texel of a capture.
+
+    Parameters
+    ----------
+    wo, wi : array_like
+        Unit directions to the camera and to the light, ``(N, 3)`` shared by every texel, or
+        ``(H, W, N, 3)`` per texel.
+    values : array_like, (H, W, N, C)
+        BSDF values (1/sr, without the cosine) of every texel in every image
+        (:func:`matfit.maps.load_capture` turns images into them). A ``numpy.memmap`` is read one
+        chunk at a time.
+    model : str
+        A family of :data:`matfit.fitting.FAMILIES`; default ``"diffuse_specular"`` (albedo,
+        F0 and GGX alpha per texel).
+    mask : (H, W) bool, optional
+        Texels to fit (default: all). Others are NaN in the maps.
+    sigma : float or array_like, optional
+        Absolute noise standard deviation of the values (broadcast to ``values``). Default:
+        relative residuals with the noise scale estimated per texel (see the module doc).
+    valid : (H, W, N) bool, optional
+        Usable measurements (saturated or shadowed ones False): left out of the fit.
+    fixed, tied
+        As in :func:`matfit.fitting.fit`.
+    chunk : int
+        Texels per solver call.
+    max_steps : int
+        Solver iterations per texel.
+    smooth : float
+        Strength of the neighbour prior (0: off; see the module doc).
+    dtype : None, "float32" or "float64"
+    progress : bool or callable
+        A progress bar on stderr, or ``progress(done, total, elapsed_s)`` after every chunk.
+
+    Returns
+    -------
+    MapResult
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit.maps import fit_map
+    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
+    >>> values = np.full((2, 2, 3, 3), 0.2)            # a 2 x 2 Lambertian capture, 3 images
+    >>> r = fit_map(wo, wi, values, model="lambert")
+    >>> r.params["albedo"].shape, round(float(r.params["albedo"][0, 0, 0]), 4)
+    ((2, 2, 3), 0.6283)
+    """
+    t0 = time.perf_counter()
+    wo, wi, values, mask, valid = _check_inputs(wo, wi, values, mask, valid, sigma)
+    H, W, N, C = values.shape
+    if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
+        raise ParameterError(f"fit_map: chunk must be an integer >= 1, got {chunk!r}")
+    if not (isinstance(smooth, (int, float)) and math.isfinite(smooth) and smooth >= 0):
+        raise ParameterError(f"fit_map: smooth must be a finite number >= 0, got {smooth!r}")
+    par = Parametrization(model, C, fixed, tied)
+    family = par.family.name
+    shared = wo.ndim == 2 and wi.ndim == 2
+    flat_v = values.reshape(H * W, N, C)
+    flat_valid = None if valid is None else valid.reshape(H * W, N)
+    # texels to fit: inside the mask, with more usable measurements than free parameters
+    n_meas = np.full(H * W, N, np.int64) if flat_valid is None else flat_valid.sum(axis=1)
+    cand = np.arange(H * W) if mask is None else np.flatnonzero(mask.reshape(-1))
+    enough = n_meas[cand] * C > par.size
+    todo = cand[enough]
+    info = []
+    if (~enough).any():
+        info.append(f"{int((~enough).sum())} texels have too few usable measurements (need > {par.size} values) "
+                    "and were not fitted")
+    chunk = int(min(chunk, max(len(todo), 1)))
+    n_chunks = -(-len(todo) // chunk) if len(todo) else 0
+
+    p = par.size
+    out_v = np.full((H * W, p), np.nan, np.float32)
+    out_se = np.full((H * W, p), np.nan, np.float32)
+    out_obj = np.full(H * W, np.nan, np.float32)
+    out_rel = np.full(H * W, np.nan, np.float32)
+    out_steps = np.zeros(H * W, np.int32)
+    out_ok = np.zeros(H * W, bool)
+    lower, upper = par.lower_upper()
+
+    def run_chunk(k):
+        idx = todo[k * chunk:(k + 1) * chunk]
+        idx = np.concatenate([idx, np.repeat(idx[-1:], chunk - len(idx))])  # same shape: one program
+        v = np.asarray(flat_v[idx], np.float64)
+        ok = np.ones(v.shape[:2], bool) if flat_valid is None else np.asarray(flat_valid[idx])
+        bad = ~np.isfinite(v) & ok[..., None]
+        if bad.any():
+            t = idx[np.flatnonzero(bad.any(axis=(1, 2)))[0]]
+            raise ParameterError(f"fit_map: non-finite values at texel (row {t // W}, col {t % W}); mark them "
+                                 "invalid (valid=...) or mask the texel")
+        v = np.where(ok[..., None], v, 0.0)
+        if sigma is None:
+            w = np.broadcast_to(ok[..., None], v.shape).astype(np.float64)
+            loss = "relative"
+        else:
+            s = np.broadcast_to(np.asarray(sigma, float), values.shape).reshape(H * W, N, C)[idx]
+            w = np.where(ok[..., None], 1.0 / s**2, 0.0)
+            loss = "l2"
+        o = wo if shared else (np.broadcast_to(wo, (chunk, N, 3)) if wo.ndim == 2 else wo.reshape(H * W, N, 3)[idx])
+        i = wi if shared else (np.broadcast_to(wi, (chunk, N, 3)) if wi.ndim == 2 else wi.reshape(H * W, N, 3)[idx])
+        r = fit_arrays(o, i, v, w, model=family, loss=loss, fixed=fixed, tied=tied, max_steps=max_steps,
+                       dtype=dtype, valid=ok, known_sigma=sigma is not None, where="fit_map")
+        # relative residuals at the solution, for the diagnostics map
+        n_use = np.maximum(np.count_nonzero(w, axis=(1, 2)), 1)
+        rel = np.sqrt(2 * r.objective / n_use) if sigma is None else np.full(chunk, np.nan)
+        return {"values": r.values.astype(np.float32), "stderr": r.stderr.astype(np.float32),
+                "objective": r.objective.astype(np.float32), "rel": rel.astype(np.float32),
+                "steps": r.steps.astype(np.int32), "converged": r.converged}
+
+    def store(k, res):
+        idx = todo[k * chunk:(k + 1) * chunk]
+        n = len(idx)
+        out_v[idx], out_se[idx] = res["values"][:n], res["stderr"][:n]
+        out_obj[idx], out_rel[idx] = res["objective"][:n], res["rel"][:n]
+        out_steps[idx], out_ok[idx] = res["steps"][:n], res["converged"][:n]
+
+    bar = _progress_bar(progress, len(todo))
+    P, me = _processes()
+    mine = list(range(me, n_chunks, P))
+    local = []
+    for j, k in enumerate(mine):
+        res = run_chunk(k)
+        if P == 1:
+            store(k, res)
+        else:
+            local.append(res)
+        if bar:
+            done = min(len(todo), (j + 1) * chunk * P)
+            bar(done, len(todo), time.perf_counter() - t0)
+    if P > 1 and n_chunks:
+        _gather(local, n_chunks, P, chunk, p, store)
+    if bar and not n_chunks:
+        bar(0, 0, time.perf_counter() - t0)
+
+    fitted = np.zeros(H * W, bool)
+    fitted[todo] = True
+    span = upper - lower
+    near = np.where(np.isfinite(span), 1e-3 * span, 1e-3)
+    with np.errstate(invalid="ignore"):
+        at_bound = np.any((out_v - lower < near) | (upper - out_v < near), axis=1) & fitted
+    values_map, se_map = _to_maps(par, out_v, out_se, H, W)
+    if smooth > 0:
+        values_map = _smooth(values_map, se_map, fitted.reshape(H, W), float(smooth))
+        info.append(f"neighbour prior: smooth={smooth:g}")
+    return MapResult(
+        family=family, labels=par.labels, params=values_map, stderr=se_map, objective=out_obj.reshape(H, W),
+        rel_rmse=out_rel.reshape(H, W), converged=out_ok.reshape(H, W), at_bound=at_bound.reshape(H, W),
+        fitted=fitted.reshape(H, W), steps=out_steps.reshape(H, W), n_measurements=n_meas.reshape(H, W).astype(np.int32),
+        wall_time=time.perf_counter() - t0, info=info)
+
+
+def _to_maps(par, out_v, out_se, H, W):
+    """Flat ``(H W, p)`` values and errors to per-parameter maps (fixed parameters broadcast)."""
+    vals, ses, i = {}, {}, 0
+    for q, n in zip(par.free, par.sizes):
+        shape = (H, W, par.channels) if q.per_channel else (H, W)
+        v, s = out_v[:, i:i + n], out_se[:, i:i + n]
+        if q.per_channel:
+            v, s = np.broadcast_to(v, (H * W, par.channels)), np.broadcast_to(s, (H * W, par.channels))
+        vals[q.name] = np.ascontiguousarray(v.reshape(shape))
+        ses[q.name] = np.ascontiguousarray(s.reshape(shape))
+        i += n
+    for q in par.family.params:
+        if q.name in par.fixed:
+            f = np.asarray(par.fixed[q.name], np.float32)
+            shape = (H, W, par.channels) if q.per_channel else (H, W)
+            vals[q.name] = np.broadcast_to(f, shape).astype(np.float32)
+    return {q.name: vals[q.name] for q in par.family.params}, ses
+
+
+def _smooth(values, stderr, fitted, lam, sweeps=20):
+    """Jacobi sweeps of the precision-weighted neighbour prior (module doc)."""
+    out = {}
+    for k, v0 in values.items():
+        if k not in stderr:
+            out[k] = v0
+            continue
+        s = stderr[k]
+        prec = np.where(np.isfinite(s) & (s > 0), 1.0 / np.maximum(s, 1e-12) ** 2, 0.0)
+        f = fitted if v0.ndim == 2 else fitted[..., None]
+        prec = np.where(f, prec, 0.0)
+        x0 = np.where(f, v0, 0.0).astype(np.float64)
+        x = x0.copy()
+        for _ in range(sweeps):
+            pad = np.pad(x, [(1, 1), (1, 1)] + [(0, 0)] * (x.ndim - 2), mode="edge")
+            fp = np.pad(f.astype(float), [(1, 1), (1, 1)] + [(0, 0)] * (x.ndim - 2), mode="constant")
+            nb = pad[:-2, 1:-1] * fp[:-2, 1:-1] + pad[2:, 1:-1] * fp[2:, 1:-1] + pad[1:-1, :-2] * fp[1:-1, :-2] + \
+                pad[1:-1, 2:] * fp[1:-1, 2:]
+            cnt = fp[:-2, 1:-1] + fp[2:, 1:-1] + fp[1:-1, :-2] + fp[1:-1, 2:]
+            mean = np.where(cnt > 0, nb / np.maximum(cnt, 1), x0)
+            x = (prec * x0 + lam * mean) / (prec + lam)
+        out[k] = np.where(f, x, np.nan).astype(np.float32)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+def _processes():
+    """``(process count, this process's index)`` of JAX's multi-process runtime (1, 0 alone)."""
+    import jax
+
+    return jax.process_count(), jax.process_index()
+
+
+def _gather(local, n_chunks, P, chunk, p, store):
+    """Every process's chunk results onto every process (padded to equal counts: the collective
+    needs equal shapes), stored into the maps in chunk order."""
+    from jax.experimental import multihost_utils
+
+    per = -(-n_chunks // P)
+    blank = {"values": np.zeros((chunk, p), np.float32), "stderr": np.zeros((chunk, p), np.float32),
+             "objective": np.zeros(chunk, np.float32), "rel": np.zeros(chunk, np.float32),
+             "steps": np.zeros(chunk, np.int32), "converged": np.zeros(chunk, bool)}
+    stacked = {k: np.stack([r[k] for r in local] + [blank[k]] * (per - len(local))) for k in blank}
+    gathered = multihost_utils.process_allgather(stacked)  # leaves (P, per, chunk, ...)
+    for q in range(P):
+        for j, k in enumerate(range(q, n_chunks, P)):
+            store(k, {name: np.asarray(a[q, j]) for name, a in gathered.items()})
+
+
+def initialize_processes(coordinator, num_processes, process_id, timeout=120):
+    """Join JAX's multi-process runtime (``jax.distributed.initialize``) before any JAX work, so
+    that :func:`fit_map` splits its chunks over ``num_processes`` processes.
+
+    Parameters
+    ----------
+    coordinator : str
+        ``host:port`` of process 0 (e.g. ``"127.0.0.1:12355"``).
+    num_processes, process_id : int
+    timeout : int
+        Seconds to wait for every process to join.
+
+    Examples
+    --------
+    >>> from matfit.maps import initialize_processes
+    >>> initialize_processes("127.0.0.1:1", 0, 0)
+    Traceback (most recent call last):
+    ...
+    matfit.errors.ParameterError: num_processes must be an integer >= 1, got 0
+    """
+    for name, v, lo in (("num_processes", num_processes, 1), ("process_id", process_id, 0)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+            raise ParameterError(f"{name} must be an integer >= {lo}, got {v!r}")
+    if process_id >= num_processes:
+        raise ParameterError(f"process_id must be < num_processes = {num_processes}, got {process_id}")
+    if not isinstance(coordinator, str) or ":" not in coordinator:
+        raise ParameterError(f"coordinator must be 'host:port', got {coordinator!r}")
+    import jax
+
+    kw = {"coordinator_bind_address": coordinator} if process_id == 0 else {}
+    jax.distributed.initialize(coordinator_address=coordinator, num_processes=int(num_processes),
+                               process_id=int(process_id), initialization_timeout=int(timeout), **kw)
+
