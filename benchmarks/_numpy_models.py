@@ -1,9 +1,11 @@
 """Vectorized numpy baselines for the fitting benchmarks, written from the formulas (no matfit import).
 
-Two families with the same parameters and conventions as ``matfit.fitting.FAMILIES``:
+Families with the same parameters and conventions as ``matfit.fitting.FAMILIES``:
 
 * ``conductor_eval(wo, wi, alpha, eta, k)``: Cook-Torrance GGX with separable Smith masking
   and the exact conductor Fresnel in real arithmetic (Born & Wolf 14.2).
+* ``diffuse_specular_eval(wo, wi, albedo, f0, alpha)``: Lambert plus a GGX lobe with Schlick's
+  Fresnel (the texel model of ``matfit.maps``).
 * ``plastic_eval(wo, wi, albedo, alpha, eta)``: a rough GGX dielectric coat's reflection lobe
   plus ``T(mu_o) T(mu_i) rho / (pi eta^2 (1 - rho R_int))``, with the coat's directional
   transmittance ``T`` integrated over visible normals (Dupuy & Benyoub 2023 spherical caps) by a
@@ -86,6 +88,17 @@ def conductor_eval(wo, wi, alpha, eta, k):
     spec = _d_ggx(h, a) * _g1(wo, h, a) * _g1(wi, h, a) / (4 * np.where(ok, co * ci, 1.0))
     F = fresnel_conductor(_dot(wo, h)[:, None], np.asarray(eta), np.asarray(k))
     return np.where(ok[:, None], spec[:, None] * F, 0.0)
+
+
+def diffuse_specular_eval(wo, wi, albedo, f0, alpha):
+    """(N, C) albedo / pi plus a GGX lobe (separable Smith) with Schlick's Fresnel."""
+    a = max(float(alpha), ALPHA_MIN)
+    co, ci = wo[:, 2], wi[:, 2]
+    ok = (co > COS_EPS) & (ci > COS_EPS)
+    h = _normalize(wo + wi)
+    spec = _d_ggx(h, a) * _g1(wo, h, a) * _g1(wi, h, a) / (4 * np.where(ok, co * ci, 1.0))
+    F = np.asarray(f0) + (1 - np.asarray(f0)) * (1 - np.clip(_dot(wo, h), 0, 1)[:, None]) ** 5
+    return np.where(ok[:, None], np.asarray(albedo) / np.pi + spec[:, None] * F, 0.0)
 
 
 def _gl01(n):

@@ -1,4 +1,5 @@
-"""Command-line interface: ``matfit demo``, ``synth``, ``info``, ``fit``, ``compare``, ``export``, ``render``.
+"""Command-line interface: ``matfit demo``, ``synth``, ``info``, ``fit``, ``compare``, ``export``, ``render``,
+``fit-map``.
 
 Examples
 --------
@@ -20,6 +21,10 @@ truth when the table is synthetic) and, with ``--report``, writes a report (``ma
 (``mitsuba``, ``mitsuba-xml``, ``pbrt``, ``gltf``, ``mtlx``; ``matfit.export``) and prints how exactly each
 parameter maps; ``--save-model FIT.json`` keeps the model, and ``matfit export FIT.json --to pbrt -o m.pbrt``
 or ``matfit render FIT.json --env sky -o sphere.png`` use it later (a report's ``model.json`` too).
+
+``matfit fit-map CAPTURE -o MAPS/`` fits a family (default ``diffuse_specular``) to every texel of a
+capture folder (``matfit.maps``: images and ``capture.json``) and writes PNG/EXR maps and a textured glTF;
+``--coordinator HOST:PORT --num-processes N --process-id I`` splits the map over processes.
 
 Errors (bad arguments, scene-file errors, malformed data, impossible fits) are printed as one line and
 the exit status is 2.

@@ -122,6 +122,17 @@ def test_per_texel_directions_and_chunks_agree(noisy_map):
         np.testing.assert_allclose(b.params[k], a.params[k], rtol=1e-6)
 
 
+def test_memmap_values_read_by_chunk_equal_in_memory(noisy_map, tmp_path):
+    wo, wi, _, _, noisy, ref = noisy_map
+    np.save(tmp_path / "values.npy", noisy.astype(np.float32))
+    mm = np.load(tmp_path / "values.npy", mmap_mode="r")
+    assert isinstance(mm, np.memmap)
+    a = fit_map(wo, wi, noisy.astype(np.float32), chunk=100)
+    b = fit_map(wo, wi, mm, chunk=100)
+    for k in a.params:
+        np.testing.assert_array_equal(b.params[k], a.params[k])
+
+
 def test_smoothness_prior_reduces_error():
     wo, wi = _directions()
     truth = _truth(16, 16)

@@ -119,12 +119,13 @@ class MapResult:
                  f"({self.texels_per_second:.0f} texels/s)",
                  f"  converged {self.converged[self.fitted].mean():.1%}, at a bound {self.at_bound[self.fitted].mean():.1%}, "
                  f"median relative RMSE {np.nanmedian(self.rel_rmse[self.fitted]):.3g}" if n else "  nothing fitted"]
+        fmt = lambda a: " ".join(f"{x:.4g}" for x in np.atleast_1d(a))  # noqa: E731
         for k, v in self.params.items():
-            sel = v[self.fitted] if n else v.reshape(-1)
+            sel = v[self.fitted] if n else v.reshape((-1,) + v.shape[2:])
+            s = f"  {k:10s} median {fmt(np.nanmedian(sel, axis=0))}"
             se = self.stderr.get(k)
-            s = f"  {k:10s} median {np.nanmedian(sel, axis=0).round(4).tolist()}"
             if se is not None and n:
-                s += f", median stderr {np.nanmedian(se[self.fitted], axis=0).round(5).tolist()}"
+                s += f", median stderr {fmt(np.nanmedian(se[self.fitted], axis=0))}"
             lines.append(s)
         lines += [f"  note: {x}" for x in self.info]
         return "\n".join(lines)
@@ -260,6 +261,7 @@ def fit_map(wo, wi, values, model="diffuse_specular", mask=None, sigma=None, *, 
     chunk = int(min(chunk, max(len(todo), 1)))
     n_chunks = -(-len(todo) // chunk) if len(todo) else 0
 
+    read_rows = _row_reader(values, flat_v, N * C)
     p = par.size
     out_v = np.full((H * W, p), np.nan, np.float32)
     out_se = np.full((H * W, p), np.nan, np.float32)
@@ -272,7 +274,7 @@ def fit_map(wo, wi, values, model="diffuse_specular", mask=None, sigma=None, *, 
     def run_chunk(k):
         idx = todo[k * chunk:(k + 1) * chunk]
         idx = np.concatenate([idx, np.repeat(idx[-1:], chunk - len(idx))])  # same shape: one program
-        v = np.asarray(flat_v[idx], np.float64)
+        v = read_rows(idx)
         ok = np.ones(v.shape[:2], bool) if flat_valid is None else np.asarray(flat_valid[idx])
         bad = ~np.isfinite(v) & ok[..., None]
         if bad.any():
@@ -338,6 +340,30 @@ def fit_map(wo, wi, values, model="diffuse_specular", mask=None, sigma=None, *, 
         rel_rmse=out_rel.reshape(H, W), converged=out_ok.reshape(H, W), at_bound=at_bound.reshape(H, W),
         fitted=fitted.reshape(H, W), steps=out_steps.reshape(H, W), n_measurements=n_meas.reshape(H, W).astype(np.int32),
         wall_time=time.perf_counter() - t0, info=info)
+
+
+def _row_reader(values, flat_v, per_texel):
+    """``read(idx) -> (len(idx), N, C)`` float64 rows of the flat texel array. A ``numpy.memmap``
+    (C order) is read with ``os.pread`` of the chunk's span of the file instead of through the
+    mapping: pages touched through a mapping stay in the process's resident set, so a map larger
+    than memory would fill it; read this way only the chunk is ever resident."""
+    if not (isinstance(values, np.memmap) and values.flags.c_contiguous and getattr(values, "filename", None)):
+        return lambda idx: np.asarray(flat_v[idx], np.float64)
+    import os
+
+    item = values.dtype.itemsize
+    fh = open(values.filename, "rb")  # closed with the reader
+    row_bytes = per_texel * item
+
+    def read(idx):
+        lo, hi = int(idx.min()), int(idx.max()) + 1
+        if hi - lo > 8 * len(idx):  # a sparse mask: the mapping is cheaper than a wide span
+            return np.asarray(flat_v[idx], np.float64)
+        buf = os.pread(fh.fileno(), (hi - lo) * row_bytes, values.offset + lo * row_bytes)
+        block = np.frombuffer(buf, values.dtype).reshape((hi - lo,) + flat_v.shape[1:])
+        return block[idx - lo].astype(np.float64)
+
+    return read
 
 
 def _to_maps(par, out_v, out_se, H, W):
