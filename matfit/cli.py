@@ -230,17 +230,34 @@ def _cmd_fit_map(args):
         if not args.coordinator:
             raise ValueError("--num-processes > 1 needs --coordinator HOST:PORT (the address of process 0)")
         initialize_processes(args.coordinator, args.num_processes, args.process_id)
-    from .maps import fit_map, load_capture, write_maps
+    from .maps import load_capture
 
-    cap = load_capture(args.capture)
+    import tempfile
+
+    # the measurements go to a scratch file beside the output folder (a 4096 x 4096 capture's
+    # values do not fit in memory); fit_map reads them a chunk at a time. The output folder is
+    # made only once the maps are written: a capture that fails leaves nothing behind.
+    parent = Path(args.output).resolve().parent
+    parent.mkdir(parents=True, exist_ok=True)
+    scratch = tempfile.TemporaryDirectory(prefix=".matfit-capture-", dir=parent)
+    try:
+        return _fit_map_from(args, load_capture(args.capture, out=scratch.name), t0=time.perf_counter())
+    finally:
+        scratch.cleanup()
+
+
+def _fit_map_from(args, cap, t0):
+    import time
+
+    import jax
+
+    from .maps import fit_map, write_maps
+
     H, W = cap.shape
     print(f"{args.capture}: {H}x{W} texels, {cap.n_images} images, {cap.n_channels} channels, directions "
           f"{'shared' if cap.shared_directions else 'per texel'}; {int((~cap.valid).sum())} measurements unusable")
-    t0 = time.perf_counter()
     res = fit_map(cap.wo, cap.wi, cap.values, model=args.model, valid=cap.valid, chunk=args.chunk,
                   max_steps=args.max_steps, smooth=args.smooth, progress=not args.quiet)
-    import jax
-
     if jax.process_index() == 0:  # every process holds the merged map; one writes it
         index = write_maps(res, args.output, formats=tuple(args.formats.split(",")))
         print(res.summary())

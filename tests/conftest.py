@@ -12,7 +12,7 @@ import pytest
 CHECK_TIER = {
     "test_maps.py": ("test_noise_free_map_is_exact", "test_cli_fit_map"),
     "test_capture.py": ("test_round_trip_directions", "test_round_trip_positions"),
-    "test_diffuse_specular.py": (),
+    "test_diffuse_specular.py": ("test_eval_and_pdf_match_reference", "test_bad_parameters_raise"),
     "test_export.py": ("test_exact_mitsuba_exports_evaluate_equal_in_mitsuba", "test_pbrt_lines_parse_and_carry_alpha_without_remapping"),
     "test_render.py": ("test_lambert_white_renders_one_everywhere_in_the_furnace", "test_only_what_the_scene_calls_for_is_computed"),
     "test_bad_input.py": ("test_albedo_method", "test_channel_counts_must_match"),

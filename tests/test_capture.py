@@ -359,3 +359,237 @@ def test_error_wrong_format_and_flat_size(tmp_path):
     write_capture_document(tmp_path, _doc(1, flat_field="flat.png"))
     with pytest.raises(CaptureError, match=r"flat\.png: shape \(3, 3, 1\) does not match"):
         load_capture(tmp_path)
+
+
+# --- loading into files (out=...): memory maps written a band of rows at a time -------------------
+
+import matfit.maps._capture as capture_module  # noqa: E402
+from matfit.maps._images import open_image_rows, read_image_codes  # noqa: E402
+
+
+def _band_rows(monkeypatch, rows, w, n, c, positions=False):
+    """Make the banded loader assemble ``rows`` rows per band (1 if rows <= 1)."""
+    monkeypatch.setattr(capture_module, "_BAND_BYTES", rows * w * n * (4 * c + 1 + (24 if positions else 0)))
+
+
+def _assert_same_capture(a, b):
+    for key in ("values", "valid", "wo", "wi"):
+        x, y = getattr(a, key), getattr(b, key)
+        assert x.dtype == y.dtype and x.shape == y.shape, key
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y), err_msg=key)
+    assert a.files == b.files and a.meta == b.meta
+
+
+@pytest.mark.parametrize("fmt, geometry, vignetting", [("png16", "directions", True), ("png8", "directions", False),
+                                                       ("exr", "directions", True), ("exr", "positions", False),
+                                                       ("png16", "positions", True)])
+@pytest.mark.parametrize("rows", [1, 3, None])
+def test_out_matches_in_memory(tmp_path, monkeypatch, fmt, geometry, vignetting, rows):
+    h, w, n = 7, 6, 5
+    lights, cameras = capture_directions(n, seed=2)
+    folder = render_capture(tmp_path / "cap", _maps(h, w), lights=lights, cameras=cameras, noise=0.02, fmt=fmt,
+                            vignetting=vignetting, geometry=geometry, seed=4)
+    if rows is not None:  # several bands, the last one short (7 rows in bands of 3)
+        _band_rows(monkeypatch, rows, w, n, 3, geometry == "positions")
+    mem = load_capture(folder)
+    disk = load_capture(folder, out=tmp_path / "out" / "nested")
+    _assert_same_capture(disk, mem)
+    assert isinstance(disk.values, np.memmap) and isinstance(disk.valid, np.memmap)
+    assert not disk.values.flags.writeable and disk.values.flags.c_contiguous
+    expected = ["valid.npy", "values.npy"] + (["wi.npy", "wo.npy"] if geometry == "positions" else [])
+    assert sorted(p.name for p in (tmp_path / "out" / "nested").iterdir()) == expected
+    if geometry == "positions":
+        assert isinstance(disk.wo, np.memmap) and disk.wo.shape == (h, w, n, 3)
+    else:
+        assert not isinstance(disk.wo, np.memmap) and disk.shared_directions
+    np.testing.assert_array_equal(np.load(tmp_path / "out" / "nested" / "values.npy"), mem.values)
+
+
+def test_out_marks_saturated_grazing_and_zero_flat(tmp_path, monkeypatch):
+    img = np.full((5, 4, 3), 0.5)
+    img[3, 2, 1] = 1.0  # saturated
+    write_png(tmp_path / "i0.png", img, bit_depth=8)
+    write_png(tmp_path / "i1.png", np.full((5, 4, 3), 0.25), bit_depth=8)
+    flat = np.full((5, 4), 0.5)
+    flat[4, 0] = 0.0
+    write_png(tmp_path / "flat.png", flat, bit_depth=16)
+    write_capture_document(tmp_path, _doc(2, lights=[[0, 0, 1], [1.0, 0.0, 0.005]], flat_field="flat.png",
+                                          scale=[1.0, 2.0]))
+    _band_rows(monkeypatch, 2, 4, 2, 3)
+    mem, disk = load_capture(tmp_path), load_capture(tmp_path, out=tmp_path / "out")
+    _assert_same_capture(disk, mem)
+    assert not disk.valid[3, 2, 0] and not disk.valid[4, 0, 0] and not disk.valid[:, :, 1].any()
+    assert disk.valid[:, :, 0].sum() == 5 * 4 - 2
+
+
+def test_out_interlaced_png(tmp_path):
+    import png
+
+    codes = np.random.default_rng(1).integers(0, 60000, size=(6, 5, 3), dtype=np.uint16)
+    for j in range(2):
+        with open(tmp_path / f"i{j}.png", "wb") as f:
+            png.Writer(5, 6, greyscale=False, bitdepth=16, interlace=True).write(f, (codes + j).reshape(6, 15))
+    write_capture_document(tmp_path, _doc(2))
+    with open_image_rows(tmp_path / "i0.png") as im:
+        assert im.interlaced
+    mem = load_capture(tmp_path)
+    _assert_same_capture(load_capture(tmp_path, out=tmp_path / "out"), mem)
+    assert np.array_equal(mem.valid, np.ones((6, 5, 2), bool))
+
+
+def test_out_replaces_previous_files(tmp_path):
+    _pngs(tmp_path, 2, value=0.25)
+    write_capture_document(tmp_path, _doc(2, color_space="linear"))
+    first = load_capture(tmp_path, out=tmp_path / "out")
+    before = np.array(first.values)
+    del first
+    _pngs(tmp_path, 2, value=0.5)
+    again = load_capture(tmp_path, out=tmp_path / "out")
+    np.testing.assert_array_equal(again.values, load_capture(tmp_path).values)
+    assert not np.array_equal(again.values, before)
+
+
+def _in_memory_message(path):
+    with pytest.raises(CaptureError) as e:
+        load_capture(path)
+    return str(e.value)
+
+
+def _count_writes(monkeypatch):
+    """Record the rows written by the banded loader (to check an error came after some bands)."""
+    rows = []
+    write = capture_module._NpyFile.write_rows
+
+    def counting(self, row, band):
+        rows.append((self.path.name, row))
+        return write(self, row, band)
+
+    monkeypatch.setattr(capture_module._NpyFile, "write_rows", counting)
+    return rows
+
+
+def _no_results(out):
+    return not out.exists() or not [p.name for p in out.iterdir() if p.name.startswith(("values", "valid", "wo", "wi"))]
+
+
+def test_out_error_mid_way_leaves_no_files(tmp_path, monkeypatch):
+    """Bad pixels in the last rows of the last image: bands were written before the error."""
+    OpenEXR = pytest.importorskip("OpenEXR")
+    h, w = 6, 4
+    for j in range(3):
+        write_exr(tmp_path / f"e{j}.exr", np.full((h, w, 3), 0.5))
+    img = np.full((h, w, 3), 0.5, np.float32)
+    img[5, 1, 0] = np.nan
+    img[4, 2, 2] = np.inf
+    hdr = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    with OpenEXR.File(hdr, {"R": img[..., 0].copy(), "G": img[..., 1].copy(), "B": img[..., 2].copy()}) as f:
+        f.write(str(tmp_path / "e3.exr"))
+    write_capture_document(tmp_path, {"images": [f"e{j}.exr" for j in range(4)], "lights": [[0, 0, 1]] * 4,
+                                      "camera": [0, 0, 1], "geometry": "positions", "sample_size": [1, 1]})
+    _band_rows(monkeypatch, 1, w, 4, 3, positions=True)
+    writes = _count_writes(monkeypatch)
+    want = _in_memory_message(tmp_path)
+    assert "e3.exr: 2 non-finite pixel values" in want
+    out = tmp_path / "out"
+    with pytest.raises(CaptureError) as e:
+        load_capture(tmp_path, out=out)
+    assert str(e.value) == want  # the whole image's count, as in memory
+    assert ("values.npy", 3) in writes and ("wo.npy", 3) in writes  # rows 0-3 were written first
+    assert out.is_dir() and list(out.iterdir()) == []  # partial files removed
+
+
+def test_out_truncated_png_leaves_no_files(tmp_path, monkeypatch):
+    import png
+
+    rng = np.random.default_rng(0)
+    for j in range(2):  # noisy images in many small IDAT chunks: the data spans the file
+        codes = rng.integers(6000, 60000, size=(120, 300), dtype=np.uint16)
+        with open(tmp_path / f"i{j}.png", "wb") as f:
+            png.Writer(100, 120, greyscale=False, bitdepth=16, chunk_limit=4096).write(f, codes)
+    data = (tmp_path / "i1.png").read_bytes()
+    (tmp_path / "i1.png").write_bytes(data[: len(data) * 2 // 3])
+    write_capture_document(tmp_path, _doc(2))
+    _band_rows(monkeypatch, 4, 100, 2, 3)
+    writes = _count_writes(monkeypatch)
+    want = _in_memory_message(tmp_path)
+    assert "i1.png" in want
+    with pytest.raises(CaptureError) as e:
+        load_capture(tmp_path, out=tmp_path / "out")
+    assert str(e.value) == want
+    assert ("values.npy", 40) in writes  # the data ran out after some bands
+    assert _no_results(tmp_path / "out") and not list((tmp_path / "out").glob("*.partial"))
+
+
+@pytest.mark.parametrize("case", ["size", "depth", "missing", "flat", "corrupt header"])
+def test_out_header_errors_before_any_file(tmp_path, case):
+    _pngs(tmp_path, 2)
+    doc = _doc(3)
+    if case == "size":
+        write_png(tmp_path / "i2.png", np.full((4, 6, 3), 0.5))
+    elif case == "depth":
+        write_png(tmp_path / "i2.png", np.full((4, 5, 3), 0.5), bit_depth=8)
+    elif case == "flat":
+        _pngs(tmp_path, 3)
+        write_png(tmp_path / "flat.png", np.ones((3, 3)))
+        doc = _doc(3, flat_field="flat.png")
+    elif case == "corrupt header":
+        (tmp_path / "i2.png").write_bytes(b"\x89PNG\r\n\x1a\n garbage")
+    write_capture_document(tmp_path, doc)
+    want = _in_memory_message(tmp_path)
+    with pytest.raises(CaptureError) as e:
+        load_capture(tmp_path, out=tmp_path / "out")
+    assert str(e.value) == want
+    assert not (tmp_path / "out").exists()  # nothing was started
+
+
+def test_out_document_errors(tmp_path):
+    with _raises("capture.json"):
+        load_capture(tmp_path, out=tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("kind", ["png8", "png16", "exr-half", "exr-window"])
+def test_open_image_rows_matches_whole_reads(tmp_path, kind):
+    rng = np.random.default_rng(5)
+    a = rng.uniform(size=(9, 7, 3))
+    path = tmp_path / ("x.png" if kind.startswith("png") else "x.exr")
+    if kind.startswith("png"):
+        write_png(path, a, bit_depth=int(kind[3:]))
+    else:
+        OpenEXR = pytest.importorskip("OpenEXR")
+        hdr = {"compression": OpenEXR.PIZ_COMPRESSION, "type": OpenEXR.scanlineimage}
+        if kind == "exr-window":  # a data window away from the origin
+            hdr.update(dataWindow=((3, 10), (9, 18)), displayWindow=((0, 0), (19, 29)))
+        dt = np.float16 if kind == "exr-half" else np.float32
+        with OpenEXR.File(hdr, {k: a[..., i].astype(dt) for i, k in enumerate("RGB")}) as f:
+            f.write(str(path))
+    whole, info = read_image_codes(path)
+    with open_image_rows(path) as im:
+        assert im.shape == whole.shape and im.info == info
+        parts = [im.read(4), im.read(0), im.read(4), im.read(4), im.read(4)]
+        assert [p.shape[0] for p in parts] == [4, 0, 4, 1, 0]
+        im.finish()
+    got = np.concatenate(parts)
+    assert got.dtype == whole.dtype
+    np.testing.assert_array_equal(got, whole)
+
+
+def test_open_image_rows_errors_as_whole_reads(tmp_path):
+    rng = np.random.default_rng(0)
+    write_png(tmp_path / "x.png", rng.uniform(size=(30, 20, 3)), bit_depth=16)
+    data = (tmp_path / "x.png").read_bytes()
+    (tmp_path / "x.png").write_bytes(data[: len(data) // 2])
+    with pytest.raises(DataFormatError) as whole:
+        read_image_codes(tmp_path / "x.png")
+    with pytest.raises(DataFormatError) as banded:
+        with open_image_rows(tmp_path / "x.png") as im:
+            while im.position < im.shape[0]:
+                im.read(3)
+            im.finish()
+    assert str(banded.value) == str(whole.value) and "x.png" in str(whole.value)
+    (tmp_path / "y.exr").write_bytes(b"garbage" * 10)
+    with pytest.raises(DataFormatError) as whole:
+        read_image_codes(tmp_path / "y.exr")
+    with pytest.raises(DataFormatError) as banded:
+        open_image_rows(tmp_path / "y.exr")
+    assert str(banded.value) == str(whole.value)

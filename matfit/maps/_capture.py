@@ -31,6 +31,12 @@ pixels at the largest code in any channel (saturated), ``cos(theta_i) <= 0.01`` 
 
 Every malformed capture raises :class:`CaptureError` (a :class:`~matfit.errors.DataFormatError`)
 with one message naming the file and the field.
+
+Large captures. The measurements of an H x W capture of N images take ``H W N (4 C + 1)`` bytes
+(4.8 GB of values for 4096 x 4096 x 24 RGB images, as much again for each of ``wo`` and ``wi`` in
+``"positions"`` geometry). ``load_capture(path, out=folder)`` writes them to ``.npy`` files a band
+of rows at a time, reading all the images together by rows, and returns memory maps of them:
+memory stays bounded by a band, not the capture.
 """
 from __future__ import annotations
 
@@ -44,7 +50,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DataFormatError
-from ._images import read_image_codes
+from ._images import open_image_rows, read_image_codes
 
 __all__ = ["Capture", "CaptureError", "load_capture", "write_capture_document", "CAPTURE_KEYS",
            "DOCUMENT_NAMES", "COS_MIN"]
@@ -317,36 +323,110 @@ def _read(where, path, name):
     return pixels, info
 
 
-def _texel_points(shape, sample_size):
-    """Points (H, W, 3) of the texel centres on the sample, centred at the origin in z = 0."""
+def _texel_points(shape, sample_size, rows=slice(None)):
+    """Points (H, W, 3) of the texel centres on the sample, centred at the origin in z = 0
+    (``rows``: a slice, those rows only, the same numbers)."""
     h, w = shape
     width, height = sample_size
     x = (np.arange(w) + 0.5) / w * width - width / 2
-    y = height / 2 - (np.arange(h) + 0.5) / h * height
-    p = np.zeros((h, w, 3))
+    y = (height / 2 - (np.arange(h) + 0.5) / h * height)[rows]
+    p = np.zeros((len(y), w, 3))
     p[..., 0] = x[None, :]
     p[..., 1] = y[:, None]
     return p
 
 
-def load_capture(path) -> Capture:
+def _check_like_first(where, f, shape, info, f0, shape0, info0):
+    """Image ``f`` has the size, channels, format and bit depth of the first image ``f0``."""
+    if shape != shape0:
+        raise CaptureError(f"{where}: {f}: shape {shape} (H, W, C) differs from {f0}: {shape0}")
+    if (info["format"], info["bit_depth"]) != (info0["format"], info0["bit_depth"]):
+        raise CaptureError(f"{where}: {f}: {info['bit_depth']}-bit {info['format'].upper()} differs from "
+                           f"{f0}: {info0['bit_depth']}-bit {info0['format'].upper()}; expected all images "
+                           f"of one format and bit depth")
+
+
+def _check_flat(where, flat_path, shape, image_shape):
+    h, w, c = image_shape
+    if shape[:2] != (h, w) or shape[2] not in (1, c):
+        raise CaptureError(f"{where}: flat field {flat_path}: shape {shape} does not match the "
+                           f"images' {image_shape}; expected {(h, w, 1)} or {(h, w, c)}")
+
+
+def _measure(g, j, pixels, info, color_space, flat, points):
+    """Image ``j``'s measurements over a band of rows (or the whole image).
+
+    ``pixels`` (R, W, C) codes or floats of those rows, ``flat`` (R, W, 1 or C) linear or None,
+    ``points`` (R, W, 3) texel centres (``"positions"``) or None. Returns ``values`` (R, W, C)
+    float32, ``valid`` (R, W) and, in positions mode, ``wo``, ``wi`` (R, W, 3) (else None).
+    Every number depends on its texel alone, so bands give the numbers of the whole image.
+    """
+    rows, w = pixels.shape[:2]
+    ok = np.ones((rows, w), bool)
+    if info["format"] == "png":
+        ok &= ~np.any(pixels == info["max_code"], axis=-1)  # saturated in some channel
+    linear = _linear(pixels, info, color_space)
+
+    wo = wi = None
+    if g["geometry"] == "positions":
+        to_light = g["lights"][j] - points
+        dist = np.linalg.norm(to_light, axis=-1)
+        wi = to_light / dist[..., None]
+        to_cam = g["cameras"][j] - points
+        wo = to_cam / np.linalg.norm(to_cam, axis=-1, keepdims=True)
+        cos_i, cos_o = wi[..., 2], wo[..., 2]
+        irradiance = g["power"][j] / dist ** 2
+    else:
+        cos_i = np.full((rows, w), g["lights"][j, 2])
+        cos_o = np.full((rows, w), g["cameras"][j, 2])
+        irradiance = np.full((rows, w), g["power"][j])
+    ok &= (cos_i > COS_MIN) & (cos_o > COS_MIN)
+    denom = (g["scale"][j] * np.maximum(cos_i, 0.0) * irradiance)[..., None].astype(np.float32)
+    if flat is not None:
+        ok &= np.all(flat > 0, axis=-1)
+        denom = denom * flat
+    usable = denom > 0
+    values = np.where(usable, linear / np.where(usable, denom, 1.0), 0.0)
+    return values, ok, wo, wi
+
+
+def load_capture(path, out=None) -> Capture:
     """Load a capture folder as BRDF measurements per texel.
 
     Parameters
     ----------
     path : str or Path
         The capture folder (holding ``capture.json`` or ``capture.toml``) or the document itself.
+    out : str or Path, optional
+        A folder (created if missing) to write the measurements to instead of holding them in
+        memory: ``values.npy`` and ``valid.npy``, and in ``"positions"`` geometry ``wo.npy`` and
+        ``wi.npy`` (C-order ``.npy`` files, replaced if present). The images are read together a
+        band of rows at a time and each band is written with ``os.pwrite``, so memory stays near
+        one band (about 32 MiB) plus the decoders' buffers, whatever the image size; the returned
+        arrays are read-only ``numpy.memmap`` views of the files (``np.load(..., mmap_mode="r")``),
+        which :func:`matfit.maps.fit_map` reads a chunk at a time. The numbers are those of the
+        in-memory load, bit for bit. Files are written as ``NAME.partial`` and renamed when all
+        are complete; on any error the partial files are removed and the error is the one the
+        in-memory load raises (every image's header is checked before the files are started).
+        Memory is bounded for non-interlaced PNG and for EXR (read by scanline ranges through
+        OpenEXR's ``InputFile``); an interlaced PNG is decoded whole by pypng, so each one holds
+        about twice its codes in memory during the load.
 
     Returns
     -------
     Capture
         ``values`` (H, W, N, C) float32 and ``valid`` (H, W, N), with ``wo``/``wi`` of shape
-        (N, 3) (``"directions"``) or (H, W, N, 3) (``"positions"``).
+        (N, 3) (``"directions"``) or (H, W, N, 3) (``"positions"``); memory maps of the files
+        in ``out`` when given (``wo``/``wi`` of shape (N, 3) stay in memory).
 
     Raises
     ------
     CaptureError
         A malformed document or image (see the module docstring); the message names the file.
+        When several things are wrong, the in-memory load and ``out`` may name different ones
+        first (``out`` checks every header before any pixel data).
+    OSError
+        ``out`` cannot be created or written (a file in the way, a full disk).
 
     Examples
     --------
@@ -360,6 +440,15 @@ def load_capture(path) -> Capture:
     >>> cap = load_capture(folder)
     >>> cap.shape, cap.n_images, cap.n_channels, float(cap.values[0, 0, 0, 0])
     ((2, 3), 1, 3, 0.25)
+
+    With ``out``, the measurements go to files and come back memory-mapped:
+
+    >>> import os
+    >>> on_disk = load_capture(folder, out=f"{folder}/measured")
+    >>> type(on_disk.values).__name__, sorted(os.listdir(f"{folder}/measured"))
+    ('memmap', ['valid.npy', 'values.npy'])
+    >>> bool(np.array_equal(on_disk.values, cap.values) and np.array_equal(on_disk.valid, cap.valid))
+    True
     """
     doc_path = _find_document(path)
     where = str(doc_path)
@@ -368,6 +457,9 @@ def load_capture(path) -> Capture:
     folder = doc_path.parent
     files = tuple(folder / name for name in g["images"])
     n = len(files)
+
+    if out is not None:
+        return _load_to_folder(where, doc, g, folder, files, Path(out))
 
     # the first image fixes the size, channels, format and bit depth of all
     first, info0 = _read(where, files[0], g["images"][0])
@@ -378,11 +470,10 @@ def load_capture(path) -> Capture:
     if g["flat_field"] is not None:
         flat_path = folder / g["flat_field"]
         flat_pixels, flat_info = _read(where, flat_path, g["flat_field"])
-        if flat_pixels.shape[:2] != (h, w) or flat_pixels.shape[2] not in (1, c):
-            raise CaptureError(f"{where}: flat field {flat_path}: shape {flat_pixels.shape} does not match the "
-                               f"images' {first.shape}; expected {(h, w, 1)} or {(h, w, c)}")
+        _check_flat(where, flat_path, flat_pixels.shape, first.shape)
         flat = _linear(flat_pixels, flat_info, "linear")
 
+    points = None
     if g["geometry"] == "positions":
         points = _texel_points((h, w), g["sample_size"])
         wo_all = np.empty((h, w, n, 3), np.float32)
@@ -395,40 +486,161 @@ def load_capture(path) -> Capture:
 
     for j, (f, name) in enumerate(zip(files, g["images"])):
         pixels, info = (first, info0) if j == 0 else _read(where, f, name)
-        if pixels.shape != first.shape:
-            raise CaptureError(f"{where}: {f}: shape {pixels.shape} (H, W, C) differs from {files[0]}: {first.shape}")
-        if (info["format"], info["bit_depth"]) != (info0["format"], info0["bit_depth"]):
-            raise CaptureError(f"{where}: {f}: {info['bit_depth']}-bit {info['format'].upper()} differs from "
-                               f"{files[0]}: {info0['bit_depth']}-bit {info0['format'].upper()}; expected all images "
-                               f"of one format and bit depth")
-        ok = np.ones((h, w), bool)
-        if info["format"] == "png":
-            ok &= ~np.any(pixels == info["max_code"], axis=-1)  # saturated in some channel
-        linear = _linear(pixels, info, color_space)
-
-        if g["geometry"] == "positions":
-            to_light = g["lights"][j] - points
-            dist = np.linalg.norm(to_light, axis=-1)
-            wi = to_light / dist[..., None]
-            to_cam = g["cameras"][j] - points
-            wo = to_cam / np.linalg.norm(to_cam, axis=-1, keepdims=True)
-            wi_all[:, :, j] = wi
-            wo_all[:, :, j] = wo
-            cos_i, cos_o = wi[..., 2], wo[..., 2]
-            irradiance = g["power"][j] / dist ** 2
-        else:
-            cos_i = np.full((h, w), g["lights"][j, 2])
-            cos_o = np.full((h, w), g["cameras"][j, 2])
-            irradiance = np.full((h, w), g["power"][j])
-        ok &= (cos_i > COS_MIN) & (cos_o > COS_MIN)
-        denom = (g["scale"][j] * np.maximum(cos_i, 0.0) * irradiance)[..., None].astype(np.float32)
-        if flat is not None:
-            ok &= np.all(flat > 0, axis=-1)
-            denom = denom * flat
-        usable = denom > 0
-        values[:, :, j] = np.where(usable, linear / np.where(usable, denom, 1.0), 0.0)
-        valid[:, :, j] = ok
+        _check_like_first(where, f, pixels.shape, info, files[0], first.shape, info0)
+        values[:, :, j], valid[:, :, j], wo, wi = _measure(g, j, pixels, info, color_space, flat, points)
+        if points is not None:
+            wo_all[:, :, j], wi_all[:, :, j] = wo, wi
     return Capture(wo=wo_all, wi=wi_all, values=values, valid=valid, files=files, meta=doc)
+
+
+# --- loading to files ---------------------------------------------------------------------------
+
+# Target size in bytes of one band of rows that ``load_capture(path, out=...)`` assembles in
+# memory (values, valid and directions of every image) before writing it; at least one row.
+_BAND_BYTES = 32 << 20
+
+
+class _NpyFile:
+    """A C-order ``.npy`` file written a band of rows at a time with ``os.pwrite``, never through a
+    memory mapping (pages written through a mapping count in the process's resident memory).
+    It is written as ``NAME.partial`` and renamed to ``NAME`` by :meth:`commit`."""
+
+    def __init__(self, path, dtype, shape):
+        self.path = path
+        self.partial = path.with_name(path.name + ".partial")
+        dtype = np.dtype(dtype)
+        self.shape = tuple(shape)
+        self.row_bytes = math.prod(self.shape[1:]) * dtype.itemsize
+        self.file = open(self.partial, "w+b")
+        np.lib.format.write_array_header_1_0(self.file, {"descr": np.lib.format.dtype_to_descr(dtype),
+                                                         "fortran_order": False, "shape": self.shape})
+        self.file.flush()
+        self.offset = self.file.tell()
+        self.file.truncate(self.offset + self.shape[0] * self.row_bytes)  # sparse until written
+
+    def write_rows(self, row, band):
+        """Write ``band`` (rows ``row ...`` of the array: one contiguous range of the file)."""
+        assert band.shape[1:] == self.shape[1:] and band.flags.c_contiguous
+        buf = memoryview(band).cast("B")
+        pos = self.offset + row * self.row_bytes
+        while len(buf):
+            done = os.pwrite(self.file.fileno(), buf, pos)
+            buf, pos = buf[done:], pos + done
+
+    def commit(self):
+        self.file.close()
+        os.replace(self.partial, self.path)
+
+    def discard(self):
+        self.file.close()
+        self.partial.unlink(missing_ok=True)
+
+
+def _open_rows(where, path, name):
+    if not path.is_file():
+        raise CaptureError(f"{where}: image {name!r} not found ({path})")
+    try:
+        return open_image_rows(path)
+    except DataFormatError as e:
+        raise CaptureError(f"{where}: {e}") from None
+
+
+def _read_rows(where, src, name, n):
+    """The next ``n`` rows of an image, checked as :func:`_read` checks whole images."""
+    try:
+        pixels = src.read(n)
+    except DataFormatError as e:
+        raise CaptureError(f"{where}: {e}") from None
+    if src.info["format"] == "exr" and not (np.isfinite(pixels).all() and (pixels >= 0).all()):
+        _read(where, src.path, name)  # the whole image, for the message of the in-memory load
+        raise CaptureError(f"{where}: {src.path}: non-finite or negative pixel values in rows {src.position - n} "
+                           f"to {src.position - 1}, not found on reading it whole (did the file change?)")
+    return pixels
+
+
+def _finish(where, src):
+    try:
+        src.finish()
+    except DataFormatError as e:
+        raise CaptureError(f"{where}: {e}") from None
+
+
+def _load_to_folder(where, doc, g, folder, files, out):
+    """``load_capture(path, out=out)``: the measurements written band by band into ``out``."""
+    names, n = g["images"], len(files)
+    positions = g["geometry"] == "positions"
+    opened, written = [], {}
+    try:
+        # every header first: no big file is started for a capture that is malformed up front
+        first = _open_rows(where, files[0], names[0])
+        opened.append(first)
+        h, w, c = first.shape
+        color_space = g["color_space"] or ("srgb" if first.info["format"] == "png" else "linear")
+        flat = None
+        if g["flat_field"] is not None:
+            flat_path = folder / g["flat_field"]
+            flat = _open_rows(where, flat_path, g["flat_field"])
+            opened.append(flat)
+            _check_flat(where, flat_path, flat.shape, first.shape)
+        images = [first]
+        for f, name in zip(files[1:], names[1:]):
+            src = _open_rows(where, f, name)
+            opened.append(src)
+            _check_like_first(where, f, src.shape, src.info, files[0], first.shape, first.info)
+            images.append(src)
+
+        out.mkdir(parents=True, exist_ok=True)
+        arrays = {"valid": (bool, (h, w, n))}
+        if positions:
+            arrays.update(wo=(np.float32, (h, w, n, 3)), wi=(np.float32, (h, w, n, 3)))
+        arrays["values"] = (np.float32, (h, w, n, c))
+        for key, (dtype, shape) in arrays.items():
+            written[key] = _NpyFile(out / f"{key}.npy", dtype, shape)
+
+        row_bytes = w * n * (4 * c + 1 + (24 if positions else 0))
+        band = max(1, min(h, _BAND_BYTES // row_bytes))
+        for y in range(0, h, band):
+            r = min(band, h - y)
+            flat_band = None if flat is None else _linear(_read_rows(where, flat, g["flat_field"], r), flat.info,
+                                                          "linear")
+            points = _texel_points((h, w), g["sample_size"], slice(y, y + r)) if positions else None
+            values = np.empty((r, w, n, c), np.float32)
+            valid = np.empty((r, w, n), bool)
+            if positions:
+                wo_band = np.empty((r, w, n, 3), np.float32)
+                wi_band = np.empty((r, w, n, 3), np.float32)
+            for j, (src, name) in enumerate(zip(images, names)):
+                pixels = _read_rows(where, src, name, r)
+                values[:, :, j], valid[:, :, j], wo, wi = _measure(g, j, pixels, src.info, color_space, flat_band,
+                                                                   points)
+                if positions:
+                    wo_band[:, :, j], wi_band[:, :, j] = wo, wi
+            written["values"].write_rows(y, values)
+            written["valid"].write_rows(y, valid)
+            if positions:
+                written["wo"].write_rows(y, wo_band)
+                written["wi"].write_rows(y, wi_band)
+        for src in opened:  # the data must end after the last row, as when read whole
+            _finish(where, src)
+        for key in list(written):  # values.npy last: its presence means the load completed
+            written[key].commit()
+            del written[key]
+    except BaseException:
+        for f in written.values():
+            f.discard()
+        raise
+    finally:
+        for src in opened:
+            src.close()
+
+    def mapped(key):
+        return np.load(out / f"{key}.npy", mmap_mode="r")
+
+    if positions:
+        wo_all, wi_all = mapped("wo"), mapped("wi")
+    else:
+        wo_all, wi_all = g["cameras"].astype(np.float32), g["lights"].astype(np.float32)
+    return Capture(wo=wo_all, wi=wi_all, values=mapped("values"), valid=mapped("valid"), files=files, meta=doc)
 
 
 def _plain(v):

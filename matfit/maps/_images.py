@@ -4,6 +4,14 @@ PNG goes through pypng because Pillow truncates 16-bit colour PNG to 8 bits; EXR
 the ``OpenEXR.File`` API. PNG codes are returned divided by the largest code (values in [0, 1],
 no colour decoding); EXR values are returned as stored (linear floats). Every error is a
 :class:`~matfit.errors.DataFormatError` naming the file.
+
+:func:`open_image_rows` reads an image a band of rows at a time, for loaders that must stay
+bounded in memory: non-interlaced PNG rows come from pypng's lazy row iterator, EXR scanline
+ranges from OpenEXR's ``InputFile.channels(names, type, y1, y2)``. Interlaced PNGs cannot be
+read by rows (pypng decodes them whole on the first row) and an OpenEXR without ``InputFile``
+is read whole: both are accepted, holding that image's pixels in memory until closed. The errors
+are those of :func:`read_image_codes`, word for word: on any problem the file is read whole
+again to raise the same message.
 """
 from __future__ import annotations
 
@@ -14,7 +22,7 @@ import numpy as np
 
 from ..errors import DataFormatError
 
-__all__ = ["read_image", "write_png", "write_exr"]
+__all__ = ["read_image", "read_image_codes", "open_image_rows", "ImageRows", "write_png", "write_exr"]
 
 #: Image file extensions understood by :func:`read_image`, and their format names.
 EXTENSIONS = {".png": "png", ".exr": "exr"}
@@ -28,12 +36,13 @@ def _format_of(path):
     return fmt
 
 
-def _read_png_codes(path):
-    """The integer codes ``(H, W, C)`` (uint8 or uint16) of an 8- or 16-bit PNG and its bit depth."""
+def _png_reader(path, file=None):
+    """A ``png.Reader`` past the header of an 8- or 16-bit non-palette PNG (``file``: an open
+    binary file to read from instead of ``path``)."""
     import png
 
     try:
-        reader = png.Reader(filename=str(path))
+        reader = png.Reader(filename=str(path)) if file is None else png.Reader(file=file)
         reader.preamble()
     except Exception as e:  # pypng raises FormatError, zlib or EOF errors on damaged files
         raise DataFormatError(f"{path}: not a readable PNG file ({type(e).__name__}: {e})") from None
@@ -43,6 +52,12 @@ def _read_png_codes(path):
                               f"greyscale or RGB(A) PNG, found a {reader.bitdepth}-bit palette image")
     if reader.bitdepth not in (8, 16):
         raise DataFormatError(f"{path}: expected 8- or 16-bit PNG, found {reader.bitdepth}-bit")
+    return reader
+
+
+def _read_png_codes(path):
+    """The integer codes ``(H, W, C)`` (uint8 or uint16) of an 8- or 16-bit PNG and its bit depth."""
+    reader = _png_reader(path)
     try:
         # read() applies no conversion (asDirect would rescale to an sBIT depth)
         width, height, rows, info = reader.read()
@@ -57,6 +72,16 @@ def _read_png_codes(path):
     return codes.reshape(height, width, planes), int(info["bitdepth"])
 
 
+def _exr_order(path, names):
+    """The channels read from an EXR with channels ``names``, in pixel order: R, G, B[, A] or Y[, A]."""
+    names = set(names)
+    if {"R", "G", "B"} <= names:
+        return ["R", "G", "B"] + (["A"] if "A" in names else [])
+    if "Y" in names:
+        return ["Y"] + (["A"] if "A" in names else [])
+    raise DataFormatError(f"{path}: expected EXR channels R, G, B or Y, found {sorted(names)}")
+
+
 def _read_exr(path):
     """The float32 pixels ``(H, W, C)`` of an EXR file (R, G, B[, A] or Y) and its bit depth."""
     import OpenEXR
@@ -66,13 +91,7 @@ def _read_exr(path):
             channels = {name: (ch.pixels, ch.type()) for name, ch in f.channels().items()}
     except Exception as e:
         raise DataFormatError(f"{path}: not a readable EXR file ({type(e).__name__}: {e})") from None
-    names = set(channels)
-    if {"R", "G", "B"} <= names:
-        order = ["R", "G", "B"] + (["A"] if "A" in names else [])
-    elif "Y" in names:
-        order = ["Y"] + (["A"] if "A" in names else [])
-    else:
-        raise DataFormatError(f"{path}: expected EXR channels R, G, B or Y, found {sorted(names)}")
+    order = _exr_order(path, channels)
     kinds = {channels[n][1] for n in order}
     if not kinds <= {OpenEXR.HALF, OpenEXR.FLOAT}:
         raise DataFormatError(f"{path}: expected HALF or FLOAT EXR channels, found {sorted(str(k) for k in kinds)}")
@@ -91,6 +110,185 @@ def read_image_codes(path):
         return codes, {"bit_depth": depth, "format": "png", "max_code": (1 << depth) - 1}
     pixels, depth = _read_exr(path)
     return pixels, {"bit_depth": depth, "format": "exr", "max_code": None}
+
+
+def _canonical_error(path, what):
+    """Raise the error :func:`read_image_codes` gives for ``path`` (reading it whole); if that
+    read succeeds (the file changed meanwhile), raise one naming ``what``."""
+    read_image_codes(path)
+    raise DataFormatError(f"{path}: {what}, yet the file reads whole without error (did it change meanwhile?)")
+
+
+class ImageRows:
+    """Bands of rows of one image, read in order from the top: see :func:`open_image_rows`.
+
+    Attributes
+    ----------
+    path : Path
+    shape : tuple
+        ``(H, W, C)``, as :func:`read_image_codes` would return.
+    info : dict
+        As :func:`read_image_codes` returns (``"bit_depth"``, ``"format"``, ``"max_code"``).
+    position : int
+        The number of rows read so far.
+    interlaced : bool
+        An interlaced PNG: decoded whole on the first read, held in memory until closed.
+    """
+
+    def __init__(self, path, shape, info, read, close=None):
+        self.path, self.shape, self.info = Path(path), tuple(shape), info
+        self.position = 0
+        self.interlaced = False
+        self._read, self._close = read, close
+
+    def read(self, n):
+        """The next ``n`` rows, ``(n, W, C)``: integer codes (uint8 or uint16) for PNG, float32
+        for EXR; fewer at the bottom of the image, none past it. Errors as :func:`read_image_codes`."""
+        n = max(0, min(int(n), self.shape[0] - self.position))
+        rows = self._read(self.position, n)
+        self.position += n
+        return rows
+
+    def finish(self):
+        """Check the image's data ends where expected (after its last row) and close it."""
+        if self.position < self.shape[0]:
+            raise ValueError(f"{self.path}: {self.shape[0] - self.position} rows not read")
+        self._read(self.shape[0], -1)
+        self.close()
+
+    def close(self):
+        """Release the file (idempotent)."""
+        if self._close is not None:
+            close, self._close = self._close, None
+            close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def _png_rows(path):
+    fh = open(path, "rb")
+    try:
+        reader = _png_reader(path, file=fh)
+        try:
+            width, height, rows, info = reader.read()  # lazy: only the header is read here
+        except Exception:
+            _canonical_error(path, "corrupt PNG pixel data")
+    except BaseException:
+        fh.close()
+        raise
+    planes, depth = int(info["planes"]), int(info["bitdepth"])
+    dtype = np.uint16 if depth == 16 else np.uint8
+    rows = iter(rows)
+
+    def read(y, n):
+        if n < 0:  # the end: nothing may follow the last row (errors in the last chunks show here)
+            try:
+                extra = next(rows, None)
+            except Exception:
+                extra = True
+            if extra is not None:
+                _canonical_error(path, "corrupt PNG pixel data after the last row")
+            return None
+        try:
+            codes = np.vstack([np.frombuffer(next(rows), dtype=dtype) for _ in range(n)]) if n else \
+                np.zeros((0, width * planes), dtype)
+        except Exception:  # a damaged stream, a short row or too few rows
+            _canonical_error(path, f"corrupt PNG pixel data in rows {y} to {y + n - 1}")
+        if codes.shape != (n, width * planes):
+            _canonical_error(path, f"corrupt PNG pixel data in rows {y} to {y + n - 1}")
+        return codes.reshape(n, width, planes)
+
+    info = {"bit_depth": depth, "format": "png", "max_code": (1 << depth) - 1}
+    out = ImageRows(path, (height, width, planes), info, read, fh.close)
+    out.interlaced = bool(reader.interlace)
+    return out
+
+
+def _exr_rows(path):
+    import OpenEXR
+
+    if not hasattr(OpenEXR, "InputFile"):  # no scanline API: read whole, serve bands from memory
+        pixels, depth = _read_exr(path)
+        info = {"bit_depth": depth, "format": "exr", "max_code": None}
+        return ImageRows(path, pixels.shape, info, lambda y, n: pixels[y:y + n] if n >= 0 else None)
+    import Imath
+
+    try:
+        f = OpenEXR.InputFile(str(path))
+    except Exception:
+        _canonical_error(path, "not a readable EXR file")
+    try:
+        header = f.header()
+        channels = header["channels"]
+        window = header["dataWindow"]
+        order = _exr_order(path, channels)
+        kinds = {str(channels[n].type) for n in order}
+        if not kinds <= {"HALF", "FLOAT"}:
+            _canonical_error(path, f"expected HALF or FLOAT EXR channels, found {sorted(kinds)}")
+    except Exception:
+        f.close()
+        raise
+    y0, width = window.min.y, window.max.x - window.min.x + 1
+    height = window.max.y - window.min.y + 1
+    as_float = Imath.PixelType(Imath.PixelType.FLOAT)
+
+    def read(y, n):
+        if n <= 0:
+            return None if n < 0 else np.zeros((0, width, len(order)), np.float32)
+        try:
+            planes = f.channels(order, as_float, y0 + y, y0 + y + n - 1)
+            return np.stack([np.frombuffer(b, np.float32).reshape(n, width) for b in planes], axis=-1)
+        except Exception:
+            _canonical_error(path, f"corrupt EXR pixel data in rows {y} to {y + n - 1}")
+
+    info = {"bit_depth": 32 if "FLOAT" in kinds else 16, "format": "exr", "max_code": None}
+    return ImageRows(path, (height, width, len(order)), info, read, f.close)
+
+
+def open_image_rows(path):
+    """Open an image to read it a band of rows at a time (top to bottom).
+
+    The pixels are those of :func:`read_image_codes` (PNG: integer codes; EXR: float32), as are
+    the errors. Non-interlaced PNGs are decoded as their rows are read; EXR reads only the
+    scanlines asked for (through OpenEXR's ``InputFile``). An interlaced PNG is decoded whole on
+    its first read (``interlaced`` is True) and held until closed.
+
+    Parameters
+    ----------
+    path : str or Path
+        A ``.png`` or ``.exr`` file, as for :func:`read_image`.
+
+    Returns
+    -------
+    ImageRows
+        ``shape`` (H, W, C), ``info``, ``read(n)`` for the next ``n`` rows, ``finish()`` to check
+        the end of the data and close, ``close()``; a context manager.
+
+    Raises
+    ------
+    DataFormatError
+        As :func:`read_image_codes`: missing, damaged or unsupported files.
+
+    Examples
+    --------
+    >>> import tempfile, os, numpy as np
+    >>> from matfit.maps._images import open_image_rows, write_png
+    >>> path = os.path.join(tempfile.mkdtemp(), "ramp.png")
+    >>> write_png(path, np.linspace(0, 1, 12).reshape(4, 3), bit_depth=8)
+    >>> with open_image_rows(path) as im:
+    ...     top, rest = im.read(1), im.read(10)
+    ...     im.finish()
+    >>> im.shape, top.shape, rest.shape, top.dtype.name, int(rest[-1, -1, 0])
+    ((4, 3, 1), (1, 3, 1), (3, 3, 1), 'uint8', 255)
+    """
+    fmt = _format_of(path)
+    if not os.path.isfile(path):
+        raise DataFormatError(f"{path}: image file not found")
+    return _png_rows(path) if fmt == "png" else _exr_rows(path)
 
 
 def read_image(path):

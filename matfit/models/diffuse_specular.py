@@ -11,14 +11,16 @@ per texel), and of the article's Cook-Torrance section with a diffuse term added
 
 for :math:`\cos\theta_o, \cos\theta_i > 0` (``COS_EPS``), else 0. The two terms are added, not
 coupled: the diffuse part does not lose what the lobe reflects, so the hemispherical
-reflectance is at most :math:`\rho` plus the lobe's (itself at most 1) and exceeds 1 when
-:math:`\rho` and :math:`F_0` are both near 1. It is the phenomenological texel model of SVBRDF
+reflectance is :math:`\rho` plus the lobe's, and can exceed 1: Schlick's grazing term is there
+even at :math:`F_0 = 0` (at :math:`\cos\theta_o = 0.4`, :math:`\alpha = 0.1` it is 1.013 for
+:math:`\rho = F_0 = 0.5`). It is the phenomenological texel model of SVBRDF
 capture, not a layered material (see :class:`~matfit.models.Plastic` for a diffuse base under a
 Fresnel-weighted coat).
 
 Parameters
 ----------
-albedo : (..., C) in [0, 1], differentiable. Diffuse albedo :math:`\rho`.
+albedo : (..., C) in [0, 1], differentiable. Diffuse albedo :math:`\rho` (stored as the field
+    ``diffuse``: ``albedo(wo)`` is the directional-albedo method of every model).
 f0 : (..., C) in [0, 1], differentiable. Normal-incidence specular reflectance :math:`F_0`.
 alpha : float or array, >= 0 (clamped to ``ALPHA_MIN`` inside D), differentiable.
 alpha_y : optional, anisotropic width along y.
@@ -61,7 +63,7 @@ class DiffuseSpecular(AbstractMicrofacetBSDF):
     (3,)
     """
 
-    albedo: jnp.ndarray = eqx.field(converter=as_channels)
+    diffuse: jnp.ndarray = eqx.field(converter=as_channels)  # the albedo rho (``albedo`` is the method)
     f0: jnp.ndarray = eqx.field(converter=as_channels)
 
     def __init__(self, albedo, f0=0.04, alpha=0.2, distribution="ggx", masking="separable", alpha_y=None,
@@ -70,12 +72,12 @@ class DiffuseSpecular(AbstractMicrofacetBSDF):
         check_range("DiffuseSpecular", "albedo", albedo, 0.0, 1.0)
         check_range("DiffuseSpecular", "f0", f0, 0.0, 1.0)
         check_channels("DiffuseSpecular", albedo=albedo, f0=f0)
-        self.albedo = albedo
+        self.diffuse = albedo
         self.f0 = f0
 
     @property
     def channels(self):
-        return jnp.broadcast_shapes(self.albedo.shape, self.f0.shape)[-1]
+        return jnp.broadcast_shapes(self.diffuse.shape, self.f0.shape)[-1]
 
     pair_kernels = True
 
@@ -87,10 +89,10 @@ class DiffuseSpecular(AbstractMicrofacetBSDF):
         ok = pairs.iso[0]
         spec = self.reflection_lobe(pairs)[..., None]
         F = fresnel_schlick(pairs.cos_d[..., None], self.f0)
-        return jnp.where(ok[..., None], self.albedo / jnp.pi, 0) + spec * F
+        return jnp.where(ok[..., None], self.diffuse / jnp.pi, 0) + spec * F
 
     def _p_diffuse(self):
-        a = jnp.mean(self.albedo, axis=-1)
+        a = jnp.mean(self.diffuse, axis=-1)
         s = jnp.mean(self.f0, axis=-1)
         return jnp.where(a + s > 0, safe_div(a, a + s), 0.5)
 
