@@ -5,12 +5,11 @@ block per device, and every jitted elementwise function of it runs on all device
 propagates through ``jax.jit``). The same code runs unchanged on one device, on several host
 devices and on GPUs.
 
-On a CPU, measure before splitting (``benchmarks/bench_cores.py``): with jax 0.10.2 one CPU
-device already runs a large fused loop on every core (a compute-bound kernel is 2.0x faster
-with both cores allowed than pinned to one), while two *host devices* (:func:`use_host_devices`)
-run their blocks one after the other on this machine (1.08x for that kernel, 0.84x for
-``matfit.fast.eval_soa``). So the default is one CPU device; host devices are for the cases
-where a measurement shows a gain, and for testing the multi-device code path.
+On a CPU, measure before splitting (``benchmarks/bench_cores.py``, figures in
+``docs/performance.md``): one CPU device already runs a large fused loop on every core, while
+two *host devices* (:func:`use_host_devices`) were measured running their blocks one after the
+other. So the default is one CPU device; host devices are for the cases where a measurement
+shows a gain, and for testing the multi-device code path.
 
 Examples
 --------
@@ -95,11 +94,10 @@ def use_cores(n: int) -> int:
     XLA sizes its CPU thread pool from the cores a process may use when JAX starts its backend,
     so this must run before that (before the first array is created or ``jax.devices()`` is
     called; importing jax or matfit first is fine); the shell's ``taskset -c 0 python ...`` does
-    the same from outside. Many small calls gain from one core: a 16-walker log-posterior of a
-    2048-row table spends more on handing each of its ~10 loops to a second thread than the
-    thread gives back, and an emcee step with one core allowed was 1.34x faster than with two
+    the same from outside. Many small calls gain from one core: a small log-posterior call spends
+    more on handing each of its loops to a second thread than the thread gives back
     (``benchmarks/bench_emcee.py --cores 1``, ``docs/performance.md``). Large tables lose: a full
-    MERL fit's loops run at half speed on one core.
+    MERL fit's loops run on one core instead of two.
 
     Returns the number of cores the process may now use. Raises
     :class:`matfit.errors.MatfitError` when JAX's backend has already started or the platform
@@ -132,14 +130,11 @@ def for_small_calls(cores: int | None = 1) -> int:
     CPU dispatch off (``jax_cpu_enable_async_dispatch``).
 
     With asynchronous dispatch, JAX's default, each call is handed to a runtime thread and the
-    caller then waits for its result: for a call of ~0.25 ms (16 walkers on a 2048-row table)
-    that hand-over costs about as much as a tenth of the call, and more when the thread has gone
-    idle while emcee's own Python ran. With dispatch off the caller runs the call itself. An
-    emcee step (``benchmarks/bench_emcee.py``'s posterior, float32) took 1.07-1.10 ms instead of
-    1.21-1.43 ms with one core (median over chunks of 400 steps, three processes each), and
-    1.50 instead of 1.70-1.78 ms with two (``docs/performance.md``). Large calls (a full MERL
-    table's fit) run at half speed on one core: ``cores=None`` keeps every core and only turns
-    the dispatch off.
+    caller then waits for its result: for a small call (an emcee step's log-posterior) that
+    hand-over is a noticeable part of the call, more when the thread has gone idle while
+    emcee's own Python ran. With dispatch off the caller runs the call itself (figures in
+    ``docs/performance.md``, emcee section). Large calls (a full MERL table's fit) run on one
+    core instead of all: ``cores=None`` keeps every core and only turns the dispatch off.
 
     Must run before JAX starts its backend (before the first array is created or
     ``jax.devices()`` is called); importing jax or matfit first is fine.

@@ -24,8 +24,8 @@ per-row CIEDE2000 (median, 95th percentile) is reported as well. Mono tables are
 spectral tables have no colour difference (``null`` in the JSON).
 
 The fitted model is evaluated by one jitted call on one array that holds the table's rows and all
-sweep directions, so a report costs one compilation per model (about 1 s for a conductor, 10 s for
-the plastic family on 2 CPU cores; eager evaluation was 5 to 10 times slower).
+sweep directions, so a report costs one compilation per model instead of the many small eager
+calls of a row-by-row evaluation (figures in ``docs/performance.md``).
 """
 
 from __future__ import annotations

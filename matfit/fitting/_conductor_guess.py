@@ -37,7 +37,7 @@ _BIN_DEG = 2.0
 _MIN_BINS, _MIN_ROWS_PER_BIN = 6, 8
 _N_BINS = int(90 / _BIN_DEG)
 #: Larger tables are read from this many of their rows (a fixed random subset): a full MERL
-#: table's 1.1 million rows took 12 s here and give the same start to a few 1e-3.
+#: table's million rows give the same start to a few 1e-3 at a fraction of the time.
 _MAX_ROWS = 50_000
 
 

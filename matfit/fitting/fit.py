@@ -102,7 +102,7 @@ def _prepared_residual_fn(par, loss, robust, scale):
     transform of the data and the residual weights), and ``fn(z, prepared)`` are the residuals at
     ``z`` -- inside a solver's loop only the model's part is recomputed. ``fn`` returns them as
     ``(N, C)``, the layout the model writes: flattening them inside the same
-    compiled function made XLA rewrite the model's loop (4x slower for a full MERL table)."""
+    compiled function made XLA rewrite the model's loop into a slower one (``docs/performance.md``)."""
 
     def prepare(arrays):
         wo, wi, values, weight = arrays
@@ -126,8 +126,8 @@ def _split_residual_fn(par, loss, robust, scale):
     prepared targets as ``(C, n)``, padded to a multiple of :data:`~matfit.fitting.lm.GRAM_BLOCK`
     rows (padding rows: normal incidence, weight 0, residual 0). ``fn(z, prepared)`` returns one
     residual array ``(n,)`` per channel, each the single-output kernel of
-    :func:`matfit.fast.eval_channel`: for a full MERL table 4-5x faster than the ``(N, C)``
-    layout (``docs/performance.md``). Only for models :func:`matfit.fast.supports_soa` accepts.
+    :func:`matfit.fast.eval_channel`: on a full MERL table faster than the ``(N, C)`` layout
+    (figures in ``docs/performance.md``). Only for models :func:`matfit.fast.supports_soa` accepts.
     """
 
     def prepare(arrays):
@@ -340,7 +340,7 @@ def _percentile10(v, valid):
 
 def initial_guesses(tables, par: Parametrization):
     """:func:`initial_guess` for many tables of one shape at once (vectorized over the tables;
-    ``fit_batch`` of a 10,000-texel map spends milliseconds here, not seconds).
+    a texel map's guesses are a few array operations, not a loop over the texels).
 
     Returns
     -------
@@ -387,7 +387,7 @@ def guesses_from_arrays(WO, WI, V, M, par: Parametrization, one=False):
     B = V.shape[0]
     rows = np.arange(B)
     floor = _percentile10(V, M)  # (B, C)
-    mean = np.einsum("bnc->bn", V) / V.shape[2]  # (a mean over a short last axis is 3x slower)
+    mean = np.einsum("bnc->bn", V) / V.shape[2]  # (einsum: numpy's mean over a short last axis is slower)
     s = WO + WI
     hz = s[..., 2] / np.maximum(np.sqrt(np.einsum("bni,bni->bn", s, s)), 1e-12)  # the half vector's cosine
     excess = np.where(M, mean - np.where(M, mean, np.inf).min(axis=1, keepdims=True), -np.inf)

@@ -14,16 +14,16 @@ Jacobian
     ``eval``), so one evaluation perturbs all of them at once. A family with ``G`` parameter
     names needs ``G`` extra evaluations per Jacobian (forward differences), whatever ``C``.
     Forward-mode AD (``jax.jacfwd``) gives the same matrix to rounding but compiles on XLA's CPU
-    backend into many partly recomputed loops and runs 10-20 times slower than the evaluations
-    it replaces (see ``docs/performance.md``).
+    backend into many partly recomputed loops, much slower than the evaluations it replaces
+    (see ``docs/performance.md``).
 
 Channel-split residuals
     ``fn`` may return the residuals as one ``(N, C)`` array or as a tuple of ``C`` arrays
     ``(n,)``, one per colour channel (``fit`` does so for the models :mod:`matfit.fast` lays
     out as structures of arrays). Split, every evaluation is ``C`` single-output loops, the ``G``
     perturbed points are evaluated one after the other instead of under ``vmap``, and each
-    channel's Gram matrix of ``[K_0 .. K_{G-1}, r]`` is a blocked reduction: a full MERL
-    conductor iteration in float32 costs ~0.1 s instead of ~0.8 s (``docs/performance.md``).
+    channel's Gram matrix of ``[K_0 .. K_{G-1}, r]`` is a blocked reduction, which a full MERL
+    conductor iteration runs several times faster (``docs/performance.md``).
 
 Normal equations
     With the compressed differences :math:`K_c` (rows x groups) of channel ``c`` and the map
@@ -128,7 +128,7 @@ def _differences(fn, z, args, seeds, owner, central, r, stacked=True):
     points (the model appears once in the program, and what depends only on the table's
     directions is computed once: large tables). Else ``K`` is a list of G arrays (N, C), the
     points evaluated one after the other (small tables, :data:`SMALL_TABLE`: under ``vmap``
-    the stacked layout ran 1.2x (float64) to 3x (float32) slower)."""
+    the stacked layout was measured slower, ``docs/performance.md``)."""
     seeds = jnp.asarray(seeds, z.dtype)
     owner = jnp.asarray(owner, z.dtype)
     if r is None:
@@ -164,9 +164,9 @@ def _group_map(seeds, owner, h, central):
 
 def _gram(xs):
     """Gram matrix ``[x_i . x_j]`` (m, m) of ``m`` arrays (n,), one product per pair ``i <= j``,
-    each summed over blocks of ``GRAM_BLOCK`` lanes first (n a multiple of it). XLA's CPU dot,
-    or a stack of the arrays followed by one reduction, runs 4-5 times slower on a full MERL
-    table (``docs/performance.md``)."""
+    each summed over blocks of ``GRAM_BLOCK`` lanes first (n a multiple of it): on a full MERL
+    table faster than XLA's CPU dot or a stack of the arrays followed by one reduction
+    (``docs/performance.md``)."""
     if xs[0].shape[0] % GRAM_BLOCK:
         X = jnp.stack(xs)
         return X @ X.T
@@ -216,9 +216,9 @@ def _moments(K, r):
     ``K`` stacked (G, N, C) (large tables) takes XLA's dot. ``K`` a list of G arrays (N, C)
     (small tables, the texels of ``fit_batch``, where this runs under ``vmap``) takes one
     elementwise product and sum per pair, after an optimization barrier (else XLA may fuse the
-    model into every product): XLA's CPU batched dot of such tiny matrices ran 3x slower (53
-    against 17 ms for 10,000 tables of 32 RGB rows); on a full MERL table the dot is 4x faster
-    than the elementwise form in float32."""
+    model into every product): XLA's CPU batched dot of such tiny matrices was measured slower
+    than the products, while on a full MERL table the dot is faster than the elementwise form
+    (``docs/performance.md``, "Batched texel fits")."""
     if not isinstance(K, (list, tuple)):
         return jnp.einsum("gnc,hnc->cgh", K, K), jnp.einsum("gnc,nc->cg", K, r)
     K, r = jax.lax.optimization_barrier((list(K), r))
@@ -281,8 +281,8 @@ def _stacked(fn):
 def _spd_solve(B, b):
     """``B^{-1} b`` for a small symmetric positive definite ``B`` (p, p): Cholesky, unrolled over
     the static ``p``. Under ``vmap`` (a batch of texel fits) it is a few fused elementwise loops
-    over the batch; ``jnp.linalg.solve`` calls LAPACK once per member there (10,000 calls per
-    solve for a texel map, ~0.7 s of a 10,000-texel fit). Cholesky needs no pivoting on such a
+    over the batch; ``jnp.linalg.solve`` calls LAPACK once per member there (one call per texel
+    per solve). Cholesky needs no pivoting on such a
     matrix (Golub & Van Loan, Matrix Computations, 4th ed., 4.2)."""
     p = B.shape[-1]
     tiny = jnp.finfo(B.dtype).tiny

@@ -49,11 +49,10 @@ Run length
 
 Speed
     Each emcee step makes two calls of half the ensemble each. On a CPU, with a table of a few
-    thousand rows, these calls are small (~0.16-0.21 ms for 16 walkers x 2048 RGB rows of the
-    conductor family in float32) and a step is as much emcee's own Python as JAX: call
+    thousand rows, these calls are small and a step is as much emcee's own Python as JAX: call
     :func:`matfit.parallel.for_small_calls` before JAX starts (one core, synchronous dispatch)
-    for steps ~1.4x faster than JAX's defaults on a 2-core machine, 22-24x a numpy
-    log-probability (``docs/performance.md``).
+    for faster steps than JAX's defaults give on a small machine (figures against a numpy
+    log-probability in ``docs/performance.md``).
     Large tables (a full MERL table) want every core instead.
 
 References
@@ -106,8 +105,8 @@ def _compiled(family, channels, fixed_items, tied, loss, noise):
     uni = np.where(np.isfinite(hi), -np.log(np.where(np.isfinite(hi), hi - lo, 1.0)), 0.0)
     ls_lo, ls_hi = (math.log(b) for b in NOISE_SCALE_BOUNDS)
     # Models of matfit.fast's structure-of-arrays path take the fit's channel-split residuals
-    # (one single-output kernel per channel, an isotropic lobe on cosines only): 1.3x faster for
-    # 16 points of 2048 rows. Their per-element arrays are laid out (C, n) then.
+    # (one single-output kernel per channel, an isotropic lobe on cosines only), faster than the
+    # (N, C) layout. Their per-element arrays are laid out (C, n) then.
     soa = supports_soa(par.model(jnp.zeros(p)))
     split_prepare, split_fn = _split_residual_fn(par, loss, None, 1.0) if soa else (None, None)
 
@@ -151,9 +150,8 @@ def _compiled(family, channels, fixed_items, tied, loss, noise):
 @functools.lru_cache(maxsize=64)
 def _packed(batched, treedef, specs):
     """``batched(X, args)`` taking ``args`` as one flat vector (:func:`_pack`): a jitted call
-    flattens, checks and transfers each argument leaf (~20 here, ~1.5 us each; an emcee step
-    on 16-point calls of 2048 rows went 1.29 -> 1.16 ms in one A/B on this project's noisy
-    2-core machine). Cached on the structure and the leaves' shapes, so tables of one shape share
+    flattens, checks and transfers each argument leaf, a cost per leaf that one vector pays once
+    (the A/B is in ``docs/performance.md``). Cached on the structure and the leaves' shapes, so tables of one shape share
     one compilation."""
     sizes = [math.prod(shape) for shape, _ in specs]
     offsets = np.cumsum([0] + sizes)

@@ -104,8 +104,8 @@ def coat_transmittance(coat, mu, table=None):
         return 1 - fresnel_dielectric(mu, coat.eta)
     grid, T = coat_transmittance_table(coat) if table is None else table
     # The nodes are mu_j = (j / (n - 1))^2, so the interval of mu is found in closed form
-    # (j = floor(sqrt(mu) (n - 1))) instead of by jnp.interp's search: same linear interpolation,
-    # about 5x faster on large tables.
+    # (j = floor(sqrt(mu) (n - 1))) instead of by jnp.interp's search: the same linear
+    # interpolation without a search per value.
     n = grid.shape[0]
     j = jnp.clip(jnp.floor(jnp.sqrt(mu) * (n - 1)).astype(jnp.int32), 0, n - 2)
     g0, g1 = grid[j], grid[j + 1]
