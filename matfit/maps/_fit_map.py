@@ -258,7 +258,9 @@ def fit_map(wo, wi, values, model="diffuse_specular", mask=None, sigma=None, *, 
     if (~enough).any():
         info.append(f"{int((~enough).sum())} texels have too few usable measurements (need > {par.size} values) "
                     "and were not fitted")
-    chunk = int(min(chunk, max(len(todo), 1)))
+    # a map smaller than a chunk is solved in the next power of two of its texel count (padded):
+    # maps of nearby sizes share one compiled program
+    chunk = int(min(chunk, 1 << max(len(todo) - 1, 0).bit_length()))
     n_chunks = -(-len(todo) // chunk) if len(todo) else 0
 
     read_rows = _row_reader(values, flat_v, N * C)
