@@ -12,7 +12,7 @@ import numpy as np
 from .errors import ParameterError
 
 
-def _real_dtype(where, x):
+def real_dtype(where, x):
     """Raise unless ``x`` holds real numbers (integer or floating; not bool, complex, text, objects)."""
     dt = getattr(x, "dtype", None)
     if dt is None:
@@ -35,7 +35,7 @@ def check_range(owner, name, x, lo=None, hi=None, lo_open=False, hi_open=False):
     if x is None or isinstance(x, jax.core.Tracer):
         return
     where = f"{owner}: parameter {name!r}"
-    _real_dtype(where, x)
+    real_dtype(where, x)
     a = np.asarray(x, dtype=float)
     if not np.all(np.isfinite(a)):
         raise ParameterError(f"{where} must be finite, found {a.ravel()[~np.isfinite(a.ravel())][:3]}")

@@ -113,41 +113,10 @@ def _load_table(path, subsample=None, seed=0, with_full=False):
     return (table, full) if with_full else table
 
 
-def _param_table(result, truth_params=None, posterior=None):
-    from .report import _truth_for_label
-
-    head = f"  {'parameter':14s} {'value':>12s} {'std. error':>11s}"
-    post = {}
-    if posterior is not None:
-        head += f" {'post. median':>12s} {'90% interval':>25s}"
-        post = {lab: i for i, lab in enumerate(posterior.labels)}
-    if truth_params:
-        head += f" {'truth':>12s} {'error/se':>9s}"
-    lines = [head]
-    for lab, v, se in zip(result.labels, result.values, result.stderr):
-        line = f"  {lab:14s} {v:12.6g} {se:11.3g}"
-        if posterior is not None:
-            i = post.get(lab)
-            line += (f" {posterior.median[i]:12.6g} {'[%.5g, %.5g]' % tuple(posterior.ci90[i]):>25s}" if i is not None
-                     else f" {'-':>12s} {'-':>25s}")
-        if truth_params:
-            tv = _truth_for_label(truth_params, lab)
-            line += (f" {tv:12.6g} {(v - tv) / se if se > 0 else float('nan'):9.2f}" if tv is not None
-                     else f" {'-':>12s} {'-':>9s}")
-        lines.append(line)
-    if posterior is not None:
-        for lab in posterior.labels:
-            if lab not in result.labels:
-                i = post[lab]
-                lines.append(f"  {lab:14s} {'-':>12s} {'-':>11s} {posterior.median[i]:12.6g} "
-                             f"{'[%.5g, %.5g]' % tuple(posterior.ci90[i]):>25s}")
-    return "\n".join(lines)
-
-
 def _cmd_fit(args):
     from .fitting.methods import DEFAULT_METHOD
     from .fitting.select import robust_fit
-    from .report import truth_from_table, write_report
+    from .report import param_table, truth_from_table, write_report
 
     table, full = _load_table(args.table, args.subsample, args.seed, with_full=True)
     fixed = _parse_fixed(args.fixed)
@@ -168,7 +137,7 @@ def _cmd_fit(args):
     print(result.summary().splitlines()[0])
     if posterior is not None:
         print(posterior.summary().splitlines()[0])
-    print(_param_table(result, tparams, posterior))
+    print(param_table(result, tparams, posterior))
     for w in getattr(result, "warnings", []):
         print(f"  WARNING {w}")
     if result.params and any(not any(l == k or l.startswith(k + "[") for l in result.labels) for k in result.params):

@@ -104,7 +104,7 @@ def run_fit_demo(out: Path, scene="demo", family="conductor", mcmc_steps=1500, c
 
     from data_synth import load_scene, synthesize
 
-    from .cli import _param_table
+    from .report import param_table
     from .fitting import compare_models
     from .fitting.select import robust_fit
     from .io import save
@@ -130,7 +130,7 @@ def run_fit_demo(out: Path, scene="demo", family="conductor", mcmc_steps=1500, c
         print(posterior.summary().splitlines()[0])
     truth = truth_from_table(table, family)
     print("true against recovered parameters:")
-    print(_param_table(result, truth["params"] if truth else None, posterior))
+    print(param_table(result, truth["params"] if truth else None, posterior))
     summary = write_report(result, table, out / "report", posterior=posterior, truth=truth,
                            title=f"{family} fit of the built-in scene '{scene}'")
     cd = summary["colour_difference"]

@@ -26,7 +26,7 @@ import numpy as np
 from ._math import Vec3
 from .errors import ParameterError
 from .models import SoAPairs, half_vector
-from .models._base import AbstractBSDF
+from .models import AbstractBSDF
 from .parallel import shard_batch
 
 __all__ = ["SoAPairs", "soa_pairs", "eval_soa", "eval_channel", "half_vector", "channel_model", "supports_soa"]

@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .io._halfdiff import dirs_to_half_diff
+from .io import dirs_to_half_diff
 
 __all__ = ["write_report", "truth_from_table", "colour_difference", "in_plane_slices", "loss_history"]
 
@@ -86,7 +86,7 @@ def loss_history(table, family, loss="l2", method="lm", starts=4, seed=0, max_st
     import optimistix as optx
 
     from .errors import ParameterError
-    from .fitting.fit import _objective_fn, _prepared_residual_fn, _table_arrays, fit_starts
+    from .fitting.fit import objective_fn, prepared_residual_fn, table_arrays, fit_starts
     from .fitting.losses import check_loss
     from .fitting.params import Parametrization
 
@@ -97,10 +97,10 @@ def loss_history(table, family, loss="l2", method="lm", starts=4, seed=0, max_st
     check_loss(loss, robust)
     par = Parametrization(family, table.n_channels, {k: np.atleast_1d(np.asarray(v, float)).tolist()
                                                      for k, v in (fixed or {}).items()}, tuple(tied))
-    prepare, fn_nc = _prepared_residual_fn(par, loss, robust, float(robust_scale))
-    arrays = _table_arrays(table, dtype)
+    prepare, fn_nc = prepared_residual_fn(par, loss, robust, float(robust_scale))
+    arrays = table_arrays(table, dtype)
     # the starts fit() runs (init replaces entries of the data-driven guess of start 0)
-    z0s = fit_starts(table, par, starts, seed, jax.jit(_objective_fn(prepare, fn_nc)), arrays, init)
+    z0s = fit_starts(table, par, starts, seed, jax.jit(objective_fn(prepare, fn_nc)), arrays, init)
     prepared = prepare(arrays)
 
     def fn(z, args):
@@ -203,7 +203,14 @@ def _normalize_truth(truth, result, channels):
     return params, model
 
 
-def _truth_for_label(params, label):
+def truth_for_label(params, label):
+    """The true value behind a parameter label (``"alpha"``, ``"eta[1]"``) in ``params``, or None.
+
+    Examples
+    --------
+    >>> truth_for_label({"eta": [1.1, 1.2, 1.3]}, "eta[1]"), truth_for_label({"alpha": 0.2}, "k")
+    (1.2, None)
+    """
     if not params:
         return None
     name, _, rest = label.partition("[")
@@ -625,7 +632,7 @@ def write_report(result, table, out_dir, posterior=None, truth=None, history=Non
     params = []
     for lab, v, s in zip(result.labels, result.values, result.stderr):
         row = {"label": lab, "value": float(v), "stderr": float(s)}
-        tv = _truth_for_label(t_params, lab)
+        tv = truth_for_label(t_params, lab)
         if tv is not None:
             row["truth"] = tv
             row["error"] = float(v) - tv
@@ -638,7 +645,7 @@ def write_report(result, table, out_dir, posterior=None, truth=None, history=Non
 
     if post_samples is not None and post_samples.shape[0] > 1:
         fv = [next((r["value"] for r in params if r["label"] == lab), None) for lab in post_labels]
-        tvs = [_truth_for_label(t_params, lab) for lab in post_labels]
+        tvs = [truth_for_label(t_params, lab) for lab in post_labels]
         _plot_corner(out / "corner.png", post_samples, post_labels, fv, tvs)
         files["corner"] = "corner.png"
 
@@ -769,3 +776,56 @@ def _write_markdown(path, s, table, result, has_truth, has_post, files):
               "![preview](preview.png)", ""]
     L += ["Numbers: `report.json`. The fitted model: `model.json` (`matfit export model.json --to gltf -o m.gltf`).", ""]
     Path(path).write_text("\n".join(L))
+
+
+def param_table(result, truth_params=None, posterior=None):
+    """The parameter table the CLI and the demo print: value, standard error, and where given the
+    posterior median and 90 % interval and the truth with the error in standard errors.
+
+    Parameters
+    ----------
+    result : matfit.fitting.FitResult
+    truth_params : dict, optional
+        True parameter values (a synthetic table's).
+    posterior : matfit.fitting.PosteriorResult, optional
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit import Table
+    >>> from matfit.fitting import fit
+    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
+    >>> r = fit(Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1)), model="lambert", starts=1)
+    >>> param_table(r, {"albedo": [np.pi * 0.1] * 3}).splitlines()[0].split()
+    ['parameter', 'value', 'std.', 'error', 'truth', 'error/se']
+    """
+    head = f"  {'parameter':14s} {'value':>12s} {'std. error':>11s}"
+    post = {}
+    if posterior is not None:
+        head += f" {'post. median':>12s} {'90% interval':>25s}"
+        post = {lab: i for i, lab in enumerate(posterior.labels)}
+    if truth_params:
+        head += f" {'truth':>12s} {'error/se':>9s}"
+    lines = [head]
+    for lab, v, se in zip(result.labels, result.values, result.stderr):
+        line = f"  {lab:14s} {v:12.6g} {se:11.3g}"
+        if posterior is not None:
+            i = post.get(lab)
+            line += (f" {posterior.median[i]:12.6g} {'[%.5g, %.5g]' % tuple(posterior.ci90[i]):>25s}" if i is not None
+                     else f" {'-':>12s} {'-':>25s}")
+        if truth_params:
+            tv = truth_for_label(truth_params, lab)
+            line += (f" {tv:12.6g} {(v - tv) / se if se > 0 else float('nan'):9.2f}" if tv is not None
+                     else f" {'-':>12s} {'-':>9s}")
+        lines.append(line)
+    if posterior is not None:
+        for lab in posterior.labels:
+            if lab not in result.labels:
+                i = post[lab]
+                lines.append(f"  {lab:14s} {'-':>12s} {'-':>11s} {posterior.median[i]:12.6g} "
+                             f"{'[%.5g, %.5g]' % tuple(posterior.ci90[i]):>25s}")
+    return "\n".join(lines)

@@ -10,6 +10,7 @@ import pytest
 #: each). One or a few quick tests per file, so that the tier touches every module of the
 #: library in a few minutes; ``make test`` runs everything.
 CHECK_TIER = {
+    "test_import_graph.py": ("test_no_module_imports_another_modules_private_names", "test_import_graph_has_no_cycles"),
     "test_maps.py": ("test_noise_free_map_is_exact", "test_cli_fit_map"),
     "test_capture.py": ("test_round_trip_directions", "test_round_trip_positions"),
     "test_diffuse_specular.py": ("test_eval_and_pdf_match_reference", "test_bad_parameters_raise"),

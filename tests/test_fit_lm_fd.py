@@ -11,7 +11,7 @@ import pytest
 
 from matfit import Table
 from matfit.fitting import fit, fit_batch, initial_guess
-from matfit.fitting.fit import _by_channel, _residual_fn, _table_arrays
+from matfit.fitting.fit import _by_channel, _residual_fn, table_arrays
 from matfit.fitting.lm import column_groups, jacobian
 from matfit.fitting.params import Parametrization
 from matfit.models import RoughConductor
@@ -45,7 +45,7 @@ def test_grouped_jacobian_matches_forward_mode(family, x64):
     t = _table(n=24)
     par = Parametrization(family, 3)
     fn = _by_channel(_residual_fn(par, "e2", None, 1.0))
-    arrays = _table_arrays(t, jnp.float64)
+    arrays = table_arrays(t, jnp.float64)
     z = jnp.asarray(np.random.default_rng(1).normal(0, 0.5, par.size))
     r, J = jacobian(fn, z, arrays, *column_groups(par), central=True)
     J_ad = jax.jacfwd(fn)(z, arrays)  # (N, C, p), every column by AD
@@ -67,7 +67,7 @@ def test_lm_fd_reaches_scipy_loss(x64):
     r = fit(t, model="conductor", method="lm_fd", starts=1, dtype=jnp.float64, rtol=1e-12, atol=1e-14)
     par = Parametrization("conductor", 3)
     fn = jax.jit(_residual_fn(par, "l2", None, 1.0))
-    arrays = _table_arrays(t, jnp.float64)
+    arrays = table_arrays(t, jnp.float64)
     z0 = np.asarray(par.z_from_theta(initial_guess(t, par)))
     ref = least_squares(lambda z: np.asarray(fn(jnp.asarray(z), arrays)), z0, xtol=1e-12, ftol=1e-12, gtol=1e-12)
     assert r.converged

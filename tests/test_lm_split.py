@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from matfit.fitting.fit import _prepared_residual_fn, _solver, _split_residual_fn, _table_arrays, initial_guess
+from matfit.fitting.fit import prepared_residual_fn, _solver, split_residual_fn, table_arrays, initial_guess
 from matfit.fitting.lm import GRAM_BLOCK, _gram, _moments, _spd_solve, column_groups, jacobian, lm_fd, normal_equations
 from matfit.fitting.params import Parametrization
 
@@ -50,8 +50,8 @@ def test_small_and_large_table_normal_equations_agree(central, x64, monkeypatch)
     par = Parametrization("conductor", 3)
     groups = column_groups(par)
     z = jnp.asarray(np.random.default_rng(4).normal(0, 0.5, par.size))
-    prep, fn = _prepared_residual_fn(par, "e2", None, 1.0)
-    args = prep(_table_arrays(t, jnp.float64))
+    prep, fn = prepared_residual_fn(par, "e2", None, 1.0)
+    args = prep(table_arrays(t, jnp.float64))
     small = normal_equations(fn, z, args, *groups, central=central, wide=True)
     monkeypatch.setattr(lm, "SMALL_TABLE", 0)
     large = normal_equations(fn, z, args, *groups, central=central, wide=True)
@@ -66,9 +66,9 @@ def test_split_residuals_equal_interleaved(family, loss, x64):
     t = _table(n=700)  # pads to 1024 rows: two Gram blocks
     par = Parametrization(family, 3)
     z = jnp.asarray(np.random.default_rng(2).normal(0, 0.5, par.size))
-    arrays = _table_arrays(t, jnp.float64)
-    prep, fn = _prepared_residual_fn(par, loss, None, 1.0)
-    sprep, sfn = _split_residual_fn(par, loss, None, 1.0)
+    arrays = table_arrays(t, jnp.float64)
+    prep, fn = prepared_residual_fn(par, loss, None, 1.0)
+    sprep, sfn = split_residual_fn(par, loss, None, 1.0)
     r = np.asarray(fn(z, prep(arrays)))
     rs = np.stack([np.asarray(x) for x in sfn(z, sprep(arrays))], axis=-1)
     assert rs.shape == (2 * GRAM_BLOCK, 3)
@@ -82,9 +82,9 @@ def test_split_normal_equations_equal_interleaved(central, x64):
     par = Parametrization("conductor", 3)
     groups = column_groups(par)
     z = jnp.asarray(np.random.default_rng(3).normal(0, 0.5, par.size))
-    arrays = _table_arrays(t, jnp.float64)
-    prep, fn = _prepared_residual_fn(par, "e2", None, 1.0)
-    sprep, sfn = _split_residual_fn(par, "e2", None, 1.0)
+    arrays = table_arrays(t, jnp.float64)
+    prep, fn = prepared_residual_fn(par, "e2", None, 1.0)
+    sprep, sfn = split_residual_fn(par, "e2", None, 1.0)
     F, A, g, _ = normal_equations(fn, z, prep(arrays), *groups, central=central)
     Fs, As, gs, rs = normal_equations(sfn, z, sprep(arrays), *groups, central=central)
     assert isinstance(rs, tuple) and len(rs) == 3
@@ -106,7 +106,7 @@ def test_split_solver_reaches_interleaved_solution(x64):
     same objective from the same start."""
     t = _table(n=600, noise=0.01)
     par = Parametrization("conductor", 3)
-    arrays = _table_arrays(t, jnp.float64)
+    arrays = table_arrays(t, jnp.float64)
     z0 = jnp.asarray(par.z_from_theta(initial_guess(t, par)))[None]
     out = {}
     for split in (False, True):

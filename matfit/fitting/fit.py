@@ -24,7 +24,7 @@ from ..parallel import device_count, shard_batch
 from ..table import Table
 from ._conductor_guess import conductor_guess, curve_readable
 from .diagnostics import diagnose
-from .lm import GRAM_BLOCK, _wide, column_groups, lm_fd
+from .lm import GRAM_BLOCK, widen, column_groups, lm_fd
 from .losses import check_loss, prepare_targets, residuals_from_targets
 from .methods import DEFAULT_METHOD, METHODS, get_method
 from .params import Parametrization, check_solver_options
@@ -96,7 +96,7 @@ class FitResult:
 
 
 # --------------------------------------------------------------------------------------------
-def _prepared_residual_fn(par, loss, robust, scale):
+def prepared_residual_fn(par, loss, robust, scale):
     """``(prepare, fn)``: ``prepare(arrays)`` turns a table's ``(wo, wi, values, weight)`` into
     ``(wo, wi, target, factor)`` once (:func:`~matfit.fitting.losses.prepare_targets`: the loss's
     transform of the data and the residual weights), and ``fn(z, prepared)`` are the residuals at
@@ -118,8 +118,8 @@ def _prepared_residual_fn(par, loss, robust, scale):
     return prepare, jax.jit(fn)
 
 
-def _split_residual_fn(par, loss, robust, scale):
-    """``(prepare, fn)`` like :func:`_prepared_residual_fn`, channel-split for :func:`lm_fd`.
+def split_residual_fn(par, loss, robust, scale):
+    """``(prepare, fn)`` like :func:`prepared_residual_fn`, channel-split for :func:`lm_fd`.
 
     ``prepare`` lays the table out once as :class:`~matfit.fast.SoAPairs` (component arrays,
     half vector, Fresnel cosine: everything that depends only on the directions) and the
@@ -148,12 +148,12 @@ def _split_residual_fn(par, loss, robust, scale):
                                    pairs.wi.z, loss, robust, scale)[:, 0]
             for c in range(target.shape[0]))
 
-    return prepare, jax.jit(fn)  # traced once per argument shape (see _prepared_residual_fn)
+    return prepare, jax.jit(fn)  # traced once per argument shape (see prepared_residual_fn)
 
 
-def _objective_fn(prepare, fn):
+def objective_fn(prepare, fn):
     """``objective(zs, arrays)``: ``0.5 |r|^2`` for a stack of ``z`` on raw table arrays (prepared
-    once per call), from the pair of :func:`_prepared_residual_fn`."""
+    once per call), from the pair of :func:`prepared_residual_fn`."""
 
     def objective(zs, arrays):
         prepared = prepare(arrays)
@@ -165,7 +165,7 @@ def _objective_fn(prepare, fn):
 
 def _residual_fn(par, loss, robust, scale):
     """Flat residuals ``fn(z, (wo, wi, values, weight))`` (the data prepared at every call)."""
-    prepare, fn = _prepared_residual_fn(par, loss, robust, scale)
+    prepare, fn = prepared_residual_fn(par, loss, robust, scale)
     return lambda z, arrays: fn(z, prepare(arrays)).reshape(-1)
 
 
@@ -221,7 +221,7 @@ def _solver(family, channels, fixed_items, tied, method, loss, robust, scale, ma
     starts' objectives and solutions on its subset (else those of the whole table), for
     covariances and diagnostics.
 
-    ``split``: ``lm_fd`` solves on channel-split residuals (:func:`_split_residual_fn`) when the
+    ``split``: ``lm_fd`` solves on channel-split residuals (:func:`split_residual_fn`) when the
     family's model supports them; single fits only (batched fits vmap the ``(N, C)`` form).
     ``lm_fd`` on a table of at least ``4 * COARSE_ROWS`` rows (a full MERL table) first solves
     every start on a fixed random subset of :data:`COARSE_ROWS` rows, one start after another
@@ -231,15 +231,15 @@ def _solver(family, channels, fixed_items, tied, method, loss, robust, scale, ma
     stopping tests. The other starts' objectives on the whole table are evaluated at their
     subset solutions, so several starts cost little more than one."""
     par = Parametrization(family, channels, dict(fixed_items), tied)
-    prepare, fn = _prepared_residual_fn(par, loss, robust, scale)  # fn: (N, C) residuals
+    prepare, fn = prepared_residual_fn(par, loss, robust, scale)  # fn: (N, C) residuals
     flat = lambda z, a: fn(z, a).reshape(-1)  # noqa: E731  (the optimistix and jaxopt solvers)
     channelled = METHODS[method].residuals == "channels"
     solve_prepare, solve_fn = prepare, (fn if channelled else flat)
     split = split and method == "lm_fd" and supports_soa(par.model(jnp.zeros(par.size)))
     if split:
-        solve_prepare, solve_fn = _split_residual_fn(par, loss, robust, scale)
+        solve_prepare, solve_fn = split_residual_fn(par, loss, robust, scale)
     groups = column_groups(par)
-    objective = _objective_fn(prepare, fn)
+    objective = objective_fn(prepare, fn)
 
     def solve_all(z0s, arrays, wide=False):
         """``(prepared, z, obj, steps, ok, best, res, sub)``: every start's solution, objective on
@@ -283,7 +283,7 @@ def _solver(family, channels, fixed_items, tied, method, loss, robust, scale, ma
         zb = z[best]
         n = arrays[0].shape[0]
         if method != "lm_fd":
-            J = _wide(jax.jacfwd(flat)(zb, prepared))  # float64 only when x64 is on (no truncation warning)
+            J = widen(jax.jacfwd(flat)(zb, prepared))  # float64 only when x64 is on (no truncation warning)
             return z, obj, steps, ok, best, flat(zb, prepared), J.T @ J, sub
         r = jnp.stack(res.r, axis=-1) if split else res.r
         return z, obj, steps, ok, best, r[:n].reshape(-1), res.A, sub
@@ -546,7 +546,7 @@ def check_memory(where, rows, channels, groups, dtype=None):
                        "with more memory")
 
 
-def _table_arrays(table, dtype, weight=None):
+def table_arrays(table, dtype, weight=None):
     """``(wo, wi, values, weight)`` of a table as JAX arrays; given the table's ``weight``
     (:meth:`~matfit.Table.effective_weight`), only the rows with a nonzero weight in some channel
     (the others add nothing to any residual: a MERL table's invalid cells, a quarter of its rows,
@@ -622,7 +622,7 @@ def fit(table, model="plastic", method=DEFAULT_METHOD, loss="l2", robust=None, r
         raise FitError(f"fit: the table has {n_res} usable residuals for {par.size} free parameters "
                        f"({', '.join(par.labels)}): at least {par.size + 1} are needed")
     check_memory("fit", int(np.count_nonzero(np.any(w_eff > 0, axis=1))), C, len(column_groups(par)[0]), dtype)
-    arrays = _table_arrays(table, dtype, weight=w_eff)
+    arrays = table_arrays(table, dtype, weight=w_eff)
     n_rows = arrays[2].size
     rows = _split_rows(arrays)
     # a large table's candidate starts are screened on its subset (24 candidates on a full MERL

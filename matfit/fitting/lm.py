@@ -181,7 +181,7 @@ def _pairwise(xs, prod):
     return jnp.stack([jnp.stack([v[min(i, j), max(i, j)] for j in range(m)], -1) for i in range(m)], -2)
 
 
-def _wide(x):
+def widen(x):
     """``x`` in float64 when x64 is on (else unchanged): for moments read by covariances."""
     return x.astype(jnp.promote_types(x.dtype, jnp.float64)) if jax.config.read("jax_enable_x64") else x
 
@@ -203,7 +203,7 @@ def _channel_moments(fn, z, args, seeds, owner, central, r, wide=False):
         K.append(tuple(a - b for a, b in zip(plus, base)))
     K, r = jax.lax.optimization_barrier((K, tuple(r)))
     G = len(K)
-    cast = _wide if wide else (lambda x: x)
+    cast = widen if wide else (lambda x: x)
     P = jnp.stack([_gram([cast(Kg[c]) for Kg in K] + [cast(r[c])]) for c in range(len(r))])
     E = _group_map(jnp.asarray(seeds, z.dtype), jnp.asarray(owner, z.dtype), h, central)
     return P[:, :G, :G], P[:, :G, G], E, r
@@ -246,9 +246,9 @@ def normal_equations(fn, z, args, seeds, owner, central=False, r=None, F=None, w
     else:
         N, C = r_like.shape[-2:]
         K, E, r = _differences(fn, z, args, seeds, owner, central, r, stacked=N * C > SMALL_TABLE)
-        M, v = _moments(*(jax.tree_util.tree_map(_wide, (K, r)) if wide else (K, r)))
+        M, v = _moments(*(jax.tree_util.tree_map(widen, (K, r)) if wide else (K, r)))
     if wide:
-        E = _wide(E)
+        E = widen(E)
     A = jnp.einsum("cgp,cgh,chq->pq", E, M, E)
     g = jnp.einsum("cgp,cg->p", E, v)
     return (_half_sq(r) if F is None else F), A, g, r

@@ -76,7 +76,7 @@ import numpy as np
 from ..errors import MatfitError, ParameterError
 from ..fast import supports_soa
 from ..table import Table
-from .fit import _split_residual_fn
+from .fit import split_residual_fn
 from .losses import check_loss, prepare_targets, residuals_from_targets
 from .params import Parametrization, get_family
 
@@ -108,7 +108,7 @@ def _compiled(family, channels, fixed_items, tied, loss, noise):
     # (one single-output kernel per channel, an isotropic lobe on cosines only), faster than the
     # (N, C) layout. Their per-element arrays are laid out (C, n) then.
     soa = supports_soa(par.model(jnp.zeros(p)))
-    split_prepare, split_fn = _split_residual_fn(par, loss, None, 1.0) if soa else (None, None)
+    split_prepare, split_fn = split_residual_fn(par, loss, None, 1.0) if soa else (None, None)
 
     def one(x, args):
         # data, target, factor: the directions and the data's part of the residuals

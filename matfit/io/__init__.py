@@ -21,12 +21,14 @@ import os
 from .._dataerr import data_error
 from ..errors import ParameterError
 from ..table import Table
+from ._halfdiff import dirs_to_half_diff, half_diff_to_dirs
 from .alta import AltaData, read_alta
 from .merl import MerlBRDF, read_merl, write_merl
 from .rgl import RglBRDF, read_rgl, read_tensor_file, write_tensor_file
 
 __all__ = ["load", "save", "read_merl", "write_merl", "read_rgl", "read_alta", "read_tensor_file",
-           "write_tensor_file", "MerlBRDF", "RglBRDF", "AltaData", "EXTENSIONS"]
+           "write_tensor_file", "MerlBRDF", "RglBRDF", "AltaData", "EXTENSIONS", "dirs_to_half_diff",
+           "half_diff_to_dirs"]
 
 EXTENSIONS = (".npz", ".csv", ".binary", ".bsdf", ".alta")
 

@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._check import _real_dtype, check_range  # noqa: F401  (re-exported for the models)
+from .._check import real_dtype, check_range  # noqa: F401  (re-exported for the models)
 from ..errors import ParameterError
 
 #: Largest accepted deviation ``|norm(w) - 1|`` of a direction (at least 16 ulp of its dtype).
@@ -78,7 +78,7 @@ def check_directions(owner, **dirs):
         shape = np.shape(v)
         if len(shape) == 0 or shape[-1] != 3:
             raise ParameterError(f"{owner}: {name} must have shape (..., 3), found {shape}")
-        _real_dtype(f"{owner}: {name}", v)
+        real_dtype(f"{owner}: {name}", v)
     if len(dirs) > 1:
         try:
             np.broadcast_shapes(*(np.shape(v)[:-1] for v in dirs.values()))
@@ -109,7 +109,7 @@ def check_u(owner, u, n):
     shape = np.shape(u)
     if len(shape) == 0 or shape[-1] < n:
         raise ParameterError(f"{owner}: u must have shape (..., {n}) (uniform numbers in [0, 1)), found {shape}")
-    _real_dtype(f"{owner}: u", u)
+    real_dtype(f"{owner}: u", u)
     if not _concrete(u) or _nested_call():
         return
     a = np.asarray(u)
