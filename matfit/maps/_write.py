@@ -43,7 +43,6 @@ from ..fitting import get_family
 from ._fit_map import MapResult
 from ._images import write_exr, write_png
 
-GLTF_FAMILIES = ("diffuse_specular", "conductor", "conductor_beckmann", "lambert", "plastic")
 FORMATS = ("png", "exr", "gltf")
 
 
@@ -116,57 +115,82 @@ def gltf_maps(result: MapResult):
     (['base_color.png'], 0.0)
     """
     fam = result.family
-    if fam not in GLTF_FAMILIES:
+    if fam not in GLTF_MAPPINGS:
         raise ParameterError(f"glTF maps: family {fam!r} has no glTF texture mapping; families with one: "
                              f"{list(GLTF_FAMILIES)} (its PNG and EXR maps are written all the same)")
-    p, fitted = result.params, result.fitted
-    H, W = result.shape
-    m3 = fitted[..., None]
-    notes = []
-    if fam in ("conductor", "conductor_beckmann"):
-        import jax.numpy as jnp
+    return GLTF_MAPPINGS[fam](result.params, result.fitted, f"matfit {fam} map")
 
-        from ..fresnel import fresnel_conductor
 
-        base = np.asarray(fresnel_conductor(jnp.ones(()), jnp.asarray(_clean(p["eta"])), jnp.asarray(_clean(p["k"]))))
-        metallic = np.ones((H, W))
-        notes.append("base colour = normal-incidence Fresnel reflectance of (eta, k); glTF's Schlick curve replaces "
-                     "the complex-index Fresnel")
-    else:
-        base = _clean(p["albedo"])
-        metallic = np.zeros((H, W))
-    base = np.where(m3, np.clip(base, 0, 1), 0)
+def _textured(name, base, fitted, metallic=None, alpha=None):
+    """``(images, material, notes)`` of a metallic-roughness material: the base colour texture
+    (sRGB) and, given ``alpha``, the metallic-roughness texture (roughness = sqrt(alpha) in G,
+    ``metallic`` in B)."""
+    base = np.where(fitted[..., None], np.clip(base, 0, 1), 0)
     images = {"base_color.png": _srgb_encode(base)}
-    pbr = {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "baseColorTexture": {"index": 0}, "metallicFactor": float(
-        metallic.max() if fam != "lambert" else 0.0)}
-    material = {"name": f"matfit {fam} map", "pbrMetallicRoughness": pbr, "extensions": {}}
-    if fam == "lambert":
-        pbr["roughnessFactor"] = 1.0
-        material["extensions"]["KHR_materials_specular"] = {"specularFactor": 0.0}
-        return images, material, notes
-    rough = np.where(fitted, np.sqrt(np.clip(_clean(p["alpha"]), 0, 1)), 1.0)
-    mr = np.stack([np.zeros((H, W)), rough, metallic], axis=-1)
-    images["metallic_roughness.png"] = mr
-    pbr.update({"metallicFactor": 1.0, "roughnessFactor": 1.0, "metallicRoughnessTexture": {"index": 1}})
-    if np.any(_clean(p["alpha"])[fitted] > 1):
-        notes.append("alpha > 1 clipped to roughness 1")
-    if fam == "diffuse_specular":
-        f0 = np.where(m3, np.clip(_clean(p["f0"]), 0, 1), 0)
-        top = float(np.clip(f0.max(), 1e-4, 0.98))
-        s = np.sqrt(top)
-        ior = (1 + s) / (1 - s)
-        images["specular_color.png"] = _srgb_encode(f0 / top)
-        material["extensions"]["KHR_materials_ior"] = {"ior": float(ior)}
-        material["extensions"]["KHR_materials_specular"] = {"specularFactor": 1.0,
-                                                            "specularColorFactor": [1.0, 1.0, 1.0],
-                                                            "specularColorTexture": {"index": 2}}
-        notes.append("glTF weights the diffuse part by 1 - max(F); the fitted model adds it unweighted")
-    elif fam == "plastic":
-        eta = float(np.nanmedian(p["eta"][fitted])) if fitted.any() else 1.5
-        material["extensions"]["KHR_materials_ior"] = {"ior": eta}
-        notes.append(f"ior = the map's median eta {eta:.4g} (glTF has no ior texture); the coat's Fresnel weighting of "
-                     "the base is glTF's 1 - max(F)")
+    pbr = {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "baseColorTexture": {"index": 0}, "metallicFactor": 0.0}
+    material = {"name": name, "pbrMetallicRoughness": pbr, "extensions": {}}
+    notes = []
+    if alpha is not None:
+        a = _clean(alpha)
+        rough = np.where(fitted, np.sqrt(np.clip(a, 0, 1)), 1.0)
+        images["metallic_roughness.png"] = np.stack([np.zeros_like(rough), rough, metallic], axis=-1)
+        pbr.update({"metallicFactor": 1.0, "roughnessFactor": 1.0, "metallicRoughnessTexture": {"index": 1}})
+        if np.any(a[fitted] > 1):
+            notes.append("alpha > 1 clipped to roughness 1")
     return images, material, notes
+
+
+def _gltf_lambert(p, fitted, name):
+    images, material, notes = _textured(name, _clean(p["albedo"]), fitted)
+    material["pbrMetallicRoughness"]["roughnessFactor"] = 1.0
+    material["extensions"]["KHR_materials_specular"] = {"specularFactor": 0.0}
+    return images, material, notes
+
+
+def _gltf_conductor(p, fitted, name):
+    import jax.numpy as jnp
+
+    from ..fresnel import fresnel_conductor
+
+    base = np.asarray(fresnel_conductor(jnp.ones(()), jnp.asarray(_clean(p["eta"])), jnp.asarray(_clean(p["k"]))))
+    images, material, notes = _textured(name, base, fitted, np.ones(fitted.shape), p["alpha"])
+    notes.append("base colour = normal-incidence Fresnel reflectance of (eta, k); glTF's Schlick curve replaces "
+                 "the complex-index Fresnel")
+    return images, material, notes
+
+
+def _gltf_diffuse_specular(p, fitted, name):
+    images, material, notes = _textured(name, _clean(p["albedo"]), fitted, np.zeros(fitted.shape), p["alpha"])
+    f0 = np.where(fitted[..., None], np.clip(_clean(p["f0"]), 0, 1), 0)
+    top = float(np.clip(f0.max(), 1e-4, 0.98))
+    s = np.sqrt(top)
+    images["specular_color.png"] = _srgb_encode(f0 / top)
+    material["extensions"]["KHR_materials_ior"] = {"ior": float((1 + s) / (1 - s))}
+    material["extensions"]["KHR_materials_specular"] = {"specularFactor": 1.0, "specularColorFactor": [1.0, 1.0, 1.0],
+                                                        "specularColorTexture": {"index": 2}}
+    notes.append("glTF weights the diffuse part by 1 - max(F); the fitted model adds it unweighted")
+    return images, material, notes
+
+
+def _gltf_plastic(p, fitted, name):
+    images, material, notes = _textured(name, _clean(p["albedo"]), fitted, np.zeros(fitted.shape), p["alpha"])
+    eta = float(np.nanmedian(p["eta"][fitted])) if fitted.any() else 1.5
+    material["extensions"]["KHR_materials_ior"] = {"ior": eta}
+    notes.append(f"ior = the map's median eta {eta:.4g} (glTF has no ior texture); the coat's Fresnel weighting of "
+                 "the base is glTF's 1 - max(F)")
+    return images, material, notes
+
+
+#: glTF texture mapping per family: ``mapping(params, fitted, name) -> (images, material, notes)``
+#: (the table in the module doc).
+GLTF_MAPPINGS = {
+    "diffuse_specular": _gltf_diffuse_specular,
+    "conductor": _gltf_conductor,
+    "conductor_beckmann": _gltf_conductor,
+    "lambert": _gltf_lambert,
+    "plastic": _gltf_plastic,
+}
+GLTF_FAMILIES = tuple(GLTF_MAPPINGS)
 
 
 def write_maps(result: MapResult, folder, formats=FORMATS):
