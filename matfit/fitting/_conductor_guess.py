@@ -168,3 +168,40 @@ def conductor_guess(wo, wi, values, alpha0, distribution="ggx", eta_range=(0.05,
         eta.append(E.ravel()[i])
         k.append(K.ravel()[i])
     return float(alpha), np.array(eta), np.array(k)
+
+
+def refine_conductor(distribution):
+    """The :attr:`~matfit.fitting.Family.refine` hook of the rough conductor families: width, eta
+    and k per table read off its Fresnel curve (:func:`conductor_guess`) where the table allows.
+
+    Parameters
+    ----------
+    distribution : str
+        The family's microfacet distribution (``"ggx"``, ``"beckmann"``).
+
+    Returns
+    -------
+    callable
+        ``refine(WO, WI, V, M, guess, family)``: updates ``guess["alpha"]``, ``guess["eta"]`` and
+        ``guess["k"]`` in place (arrays with a leading table axis).
+
+    Examples
+    --------
+    >>> from matfit.fitting import get_family
+    >>> get_family("conductor").refine is not None
+    True
+    """
+
+    def refine(WO, WI, V, M, guess, family):
+        # eta = 1 and the half-width alpha start in the basin of a bound (eta -> 8, k -> 0) for
+        # many metals; conductor_guess checks each table itself, curve_readable only spares a
+        # batch its loop
+        bounds = {p.name: (p.lower, p.upper) for p in family.params}
+        B = V.shape[0]
+        for b in (range(B) if B == 1 else np.flatnonzero(curve_readable(WO, WI, V, M))):
+            g = conductor_guess(WO[b], WI[b], V[b], guess["alpha"][b], distribution, bounds["eta"], bounds["k"],
+                                valid=M[b])
+            if g is not None:
+                guess["alpha"][b], guess["eta"][b], guess["k"][b] = g
+
+    return refine

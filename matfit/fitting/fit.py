@@ -22,7 +22,6 @@ from ..errors import MatfitError, ParameterError
 from ..fast import SoAPairs, eval_channel, supports_soa
 from ..parallel import device_count, shard_batch
 from ..table import Table
-from ._conductor_guess import conductor_guess, curve_readable
 from .diagnostics import diagnose
 from .lm import GRAM_BLOCK, widen, column_groups, lm_fd
 from .losses import check_loss, prepare_targets, residuals_from_targets
@@ -292,7 +291,6 @@ def _solver(family, channels, fixed_items, tied, method, loss, robust, scale, ma
 
 
 # --------------------------------------------------------------------------------------------
-_CONDUCTOR_DISTRIBUTION = {"conductor": "ggx", "conductor_beckmann": "beckmann"}
 
 
 def initial_guess(table: Table, par: Parametrization):
@@ -406,19 +404,15 @@ def guesses_from_arrays(WO, WI, V, M, par: Parametrization, one=False):
     guess = {
         "albedo": np.clip(np.pi * floor, 0.01, 0.95),
         "alpha": alpha.copy(), "alpha_base": alpha, "alpha_coat": np.maximum(alpha / 2, 0.02),
-        "eta": np.full(B, 1.5) if par.family.name in ("plastic", "dielectric") else ones.copy(),
+        "eta": ones.copy(),
         "k": k.copy(), "eta_base": ones, "k_base": k, "eta_coat": np.full(B, 1.5), "f0": r0,
     }
-    if par.family.name in _CONDUCTOR_DISTRIBUTION:
-        # the Fresnel curve read off the table (matfit.fitting._conductor_guess): eta = 1 and the
-        # half-width alpha start in the basin of a bound (eta -> 8, k -> 0) for many metals
-        bounds = {p.name: (p.lower, p.upper) for p in par.family.params}
-        # conductor_guess checks the table itself; curve_readable only spares a batch its loop
-        for b in (range(B) if B == 1 else np.flatnonzero(curve_readable(WO, WI, V, M))):
-            g = conductor_guess(WO[b], WI[b], V[b], alpha[b], _CONDUCTOR_DISTRIBUTION[par.family.name],
-                                bounds["eta"], bounds["k"], valid=M[b])
-            if g is not None:
-                guess["alpha"][b], guess["eta"][b], guess["k"][b] = g
+    # what the family itself knows: constant starts, then its data-driven refinement
+    for p in par.family.params:
+        if p.name in par.family.starts:
+            guess[p.name] = np.full((B, V.shape[2]) if p.per_channel else B, float(par.family.starts[p.name]))
+    if par.family.refine is not None:
+        par.family.refine(WO, WI, V, M, guess, par.family)
     # Every guess strictly inside its bounds (the bijection saturates at a bound).
     out = {}
     for p in par.free:

@@ -10,14 +10,15 @@ tied across channels (``tied=("eta",)``: one value shared by all channels).
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
-from typing import Callable
+from dataclasses import dataclass, field
+from typing import Callable, Optional
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ..errors import ParameterError
+from ._conductor_guess import refine_conductor
 from ..models import CoatedConductor, DiffuseSpecular, Lambert, Plastic, RoughConductor, RoughDielectric
 
 
@@ -52,12 +53,38 @@ class Param:
 
 @dataclass(frozen=True)
 class Family:
-    """A model family: its parameters and how to build the model from their values."""
+    """A model family: its parameters, how to build the model from their values, and what it
+    knows about starting a fit.
+
+    Attributes
+    ----------
+    name : str
+    params : tuple of Param
+    build : callable
+        ``build(values, C) -> model`` from a dict of every parameter's value.
+    doc : str
+    starts : mapping, optional
+        Constant starting values that replace the generic data-driven ones (e.g. a dielectric
+        coat's ``eta`` 1.5).
+    refine : callable, optional
+        ``refine(WO, WI, V, M, guess, family)``: refines the data-driven guess of a stack of
+        tables in place (the conductor families read eta and k off the Fresnel curve).
+
+    Examples
+    --------
+    >>> from matfit.fitting import Family, Param
+    >>> from matfit.models import Lambert
+    >>> fam = Family("grey", (Param("albedo", 0.0, 1.0),), lambda p, C: Lambert(p["albedo"]), starts={"albedo": 0.5})
+    >>> fam.starts["albedo"]
+    0.5
+    """
 
     name: str
     params: tuple[Param, ...]
     build: Callable[..., object]
     doc: str = ""
+    starts: Mapping = field(default_factory=dict, compare=False)
+    refine: Optional[Callable] = None
 
 
 def _conductor(distribution):
@@ -72,21 +99,23 @@ FAMILIES: dict[str, Family] = {
         "conductor",
         (Param("alpha", 1e-3, 1.5, False, "GGX width"), Param("eta", 0.05, 8.0, True, "real index"),
          Param("k", 0.0, 12.0, True, "extinction")),
-        _conductor("ggx"), "rough conductor, GGX, separable Smith"),
+        _conductor("ggx"), "rough conductor, GGX, separable Smith", refine=refine_conductor("ggx")),
     "conductor_beckmann": Family(
         "conductor_beckmann",
         (Param("alpha", 1e-3, 1.5, False, "Beckmann width"), Param("eta", 0.05, 8.0, True, "real index"),
          Param("k", 0.0, 12.0, True, "extinction")),
-        _conductor("beckmann"), "rough conductor, Beckmann, separable Smith"),
+        _conductor("beckmann"), "rough conductor, Beckmann, separable Smith", refine=refine_conductor("beckmann")),
     "dielectric": Family(
         "dielectric",
         (Param("alpha", 1e-3, 1.5, False, "GGX width"), Param("eta", 1.01, 4.0, False, "relative index")),
-        lambda p, C: RoughDielectric(p["alpha"], p["eta"]), "rough dielectric (reflection and transmission)"),
+        lambda p, C: RoughDielectric(p["alpha"], p["eta"]), "rough dielectric (reflection and transmission)",
+        starts={"eta": 1.5}),
     "plastic": Family(
         "plastic",
         (Param("albedo", 0.0, 1.0, True, "base albedo"), Param("alpha", 1e-3, 1.5, False, "coat GGX width"),
          Param("eta", 1.05, 3.0, False, "coat index")),
-        lambda p, C: Plastic(p["albedo"], p["alpha"], p["eta"]), "Lambertian base under a rough coat"),
+        lambda p, C: Plastic(p["albedo"], p["alpha"], p["eta"]), "Lambertian base under a rough coat",
+        starts={"eta": 1.5}),
     "car_paint": Family(
         "car_paint",
         (Param("alpha_base", 1e-3, 1.5, False, "metal GGX width"), Param("eta_base", 0.05, 8.0, True, "metal index"),
