@@ -131,6 +131,15 @@ def test_memmap_values_read_by_chunk_equal_in_memory(noisy_map, tmp_path):
     b = fit_map(wo, wi, mm, chunk=100)
     for k in a.params:
         np.testing.assert_array_equal(b.params[k], a.params[k])
+    # per-texel directions as memmaps (a streamed near-light capture) are read the same way
+    H, W = noisy.shape[:2]
+    for name, d in (("wo", wo), ("wi", wi)):
+        np.save(tmp_path / f"{name}.npy", np.broadcast_to(d, (H, W) + d.shape).astype(np.float32))
+    per = [np.load(tmp_path / f"{n}.npy", mmap_mode="r") for n in ("wo", "wi")]
+    c = fit_map(*per, mm, chunk=100)
+    d = fit_map(*(np.array(x) for x in per), noisy.astype(np.float32), chunk=100)
+    for k in a.params:
+        np.testing.assert_array_equal(c.params[k], d.params[k])
 
 
 def test_smoothness_prior_reduces_error():
@@ -160,6 +169,8 @@ def test_known_sigma():
     (dict(values=np.ones((4, 24, 3))), r"values must be \(H, W, N, C\), found shape \(4, 24, 3\)"),
     (dict(wo=np.ones((23, 3))), r"wo must be \(N, 3\) = \(24, 3\)"),
     (dict(wi=np.full((24, 3), 0.5)), "wi must be unit vectors"),
+    (dict(wi=np.full((2, 3, 24, 3), 0.5)), "wi must be unit vectors"),
+    (dict(wo=np.full((2, 3, 24, 3), np.nan)), "wo has non-finite directions"),
     (dict(mask=np.ones((2, 2))), r"mask must be a boolean \(H, W\) = \(2, 3\) array"),
     (dict(valid=np.ones((2, 3, 5), bool)), r"valid must be a boolean \(H, W, N\)"),
     (dict(sigma=-1.0), "sigma must be finite and > 0"),

@@ -144,11 +144,8 @@ def _check_inputs(wo, wi, values, mask, valid, sigma):
         if d.shape not in ((N, 3), (H, W, N, 3)):
             raise ParameterError(f"fit_map: {name} must be (N, 3) = ({N}, 3) shared by every texel or (H, W, N, 3) = "
                                  f"({H}, {W}, {N}, 3), found shape {d.shape}")
-        if not np.all(np.isfinite(d)):
-            raise ParameterError(f"fit_map: {name} has non-finite directions")
-        norm = np.linalg.norm(d, axis=-1)
-        if np.any(np.abs(norm - 1) > 1e-3):
-            raise ParameterError(f"fit_map: {name} must be unit vectors (lengths {norm.min():.4g}..{norm.max():.4g})")
+        if d.ndim == 2:  # per-texel directions (possibly a memmap) are checked a chunk at a time
+            _check_unit(name, d)
         dirs.append(d)
     if mask is not None:
         mask = np.asarray(mask)
@@ -169,6 +166,15 @@ def _check_inputs(wo, wi, values, mask, valid, sigma):
         if not np.all(np.isfinite(s)) or np.any(s <= 0):
             raise ParameterError("fit_map: sigma must be finite and > 0")
     return dirs[0], dirs[1], v, mask, valid
+
+
+def _check_unit(name, d):
+    """Directions must be finite unit vectors."""
+    if not np.all(np.isfinite(d)):
+        raise ParameterError(f"fit_map: {name} has non-finite directions")
+    norm = np.linalg.norm(d, axis=-1)
+    if np.any(np.abs(norm - 1) > 1e-3):
+        raise ParameterError(f"fit_map: {name} must be unit vectors (lengths {norm.min():.4g}..{norm.max():.4g})")
 
 
 def _progress_bar(progress, total):
@@ -263,7 +269,10 @@ def fit_map(wo, wi, values, model="diffuse_specular", mask=None, sigma=None, *, 
     chunk = int(min(chunk, 1 << max(len(todo) - 1, 0).bit_length()))
     n_chunks = -(-len(todo) // chunk) if len(todo) else 0
 
-    read_rows = _row_reader(values, flat_v, N * C)
+    read_rows = _row_reader(values, flat_v)
+    # per-texel directions (a streamed capture's memmaps) are read like the values
+    read_dirs = [None if d.ndim == 2 else _row_reader(d, d.reshape(H * W, N, 3)) for d in (wo, wi)]
+    sig = None if sigma is None else np.broadcast_to(np.asarray(sigma, float), values.shape)
     p = par.size
     out_v = np.full((H * W, p), np.nan, np.float32)
     out_se = np.full((H * W, p), np.nan, np.float32)
@@ -288,11 +297,16 @@ def fit_map(wo, wi, values, model="diffuse_specular", mask=None, sigma=None, *, 
             w = np.broadcast_to(ok[..., None], v.shape).astype(np.float64)
             loss = "relative"
         else:
-            s = np.broadcast_to(np.asarray(sigma, float), values.shape).reshape(H * W, N, C)[idx]
+            s = sig[idx // W, idx % W]  # indexes the broadcast view: no copy of the whole array
             w = np.where(ok[..., None], 1.0 / s**2, 0.0)
             loss = "l2"
-        o = wo if shared else (np.broadcast_to(wo, (chunk, N, 3)) if wo.ndim == 2 else wo.reshape(H * W, N, 3)[idx])
-        i = wi if shared else (np.broadcast_to(wi, (chunk, N, 3)) if wi.ndim == 2 else wi.reshape(H * W, N, 3)[idx])
+        o, i = wo, wi
+        if not shared:
+            o, i = (np.broadcast_to(d, (chunk, N, 3)) if read is None else read(idx)
+                    for d, read in zip((wo, wi), read_dirs))
+            for name, d, read in (("wo", o, read_dirs[0]), ("wi", i, read_dirs[1])):
+                if read is not None:
+                    _check_unit(name, d)
         r = fit_arrays(o, i, v, w, model=family, loss=loss, fixed=fixed, tied=tied, max_steps=max_steps,
                        dtype=dtype, valid=ok, known_sigma=sigma is not None, where="fit_map")
         # relative residuals at the solution, for the diagnostics map
@@ -344,8 +358,9 @@ def fit_map(wo, wi, values, model="diffuse_specular", mask=None, sigma=None, *, 
         wall_time=time.perf_counter() - t0, info=info)
 
 
-def _row_reader(values, flat_v, per_texel):
-    """``read(idx) -> (len(idx), N, C)`` float64 rows of the flat texel array. A ``numpy.memmap``
+def _row_reader(values, flat_v):
+    """``read(idx)``: float64 rows ``idx`` of ``flat_v``, the texel-flat view ``(H W, ...)`` of
+    ``values``. A ``numpy.memmap``
     (C order) is read with ``os.pread`` of the chunk's span of the file instead of through the
     mapping: pages touched through a mapping stay in the process's resident set, so a map larger
     than memory would fill it; read this way only the chunk is ever resident."""
@@ -355,7 +370,7 @@ def _row_reader(values, flat_v, per_texel):
 
     item = values.dtype.itemsize
     fh = open(values.filename, "rb")  # closed with the reader
-    row_bytes = per_texel * item
+    row_bytes = int(np.prod(flat_v.shape[1:])) * item
 
     def read(idx):
         lo, hi = int(idx.min()), int(idx.max()) + 1
@@ -400,12 +415,13 @@ def _smooth(values, stderr, fitted, lam, sweeps=20):
         prec = np.where(f, prec, 0.0)
         x0 = np.where(f, v0, 0.0).astype(np.float64)
         x = x0.copy()
+        widths = [(1, 1), (1, 1)] + [(0, 0)] * (x.ndim - 2)
+        fp = np.pad(f.astype(float), widths, mode="constant")  # which neighbours are fitted
+        cnt = fp[:-2, 1:-1] + fp[2:, 1:-1] + fp[1:-1, :-2] + fp[1:-1, 2:]
         for _ in range(sweeps):
-            pad = np.pad(x, [(1, 1), (1, 1)] + [(0, 0)] * (x.ndim - 2), mode="edge")
-            fp = np.pad(f.astype(float), [(1, 1), (1, 1)] + [(0, 0)] * (x.ndim - 2), mode="constant")
+            pad = np.pad(x, widths, mode="edge")
             nb = pad[:-2, 1:-1] * fp[:-2, 1:-1] + pad[2:, 1:-1] * fp[2:, 1:-1] + pad[1:-1, :-2] * fp[1:-1, :-2] + \
                 pad[1:-1, 2:] * fp[1:-1, 2:]
-            cnt = fp[:-2, 1:-1] + fp[2:, 1:-1] + fp[1:-1, :-2] + fp[1:-1, 2:]
             mean = np.where(cnt > 0, nb / np.maximum(cnt, 1), x0)
             x = (prec * x0 + lam * mean) / (prec + lam)
         out[k] = np.where(f, x, np.nan).astype(np.float32)
