@@ -607,7 +607,7 @@ def fit(table, model="plastic", method=DEFAULT_METHOD, loss="l2", robust=None, r
                          dtype=dtype)
     Parametrization(model, table.n_channels, fixed, tied).check_theta("fit: init", {} if init is None else init)
     C = table.n_channels
-    fixed_items = tuple(sorted((k, tuple(np.atleast_1d(np.asarray(v, float)).tolist())) for k, v in (fixed or {}).items()))
+    fixed_items = _fixed_items(fixed)
     par, _, run_full, objective = _solver(model, C, fixed_items, tuple(tied), method, loss, robust, float(robust_scale),
                                        int(max_steps), float(rtol), float(atol), device_count() == 1)
     w_eff = table.effective_weight()
@@ -713,6 +713,11 @@ def fit_batch(tables, model="plastic", method=DEFAULT_METHOD, loss="l2", fixed=N
     return res.values, res.objective, res.labels
 
 
+def _fixed_items(fixed):
+    """``fixed`` as a hashable key of the compiled-solver cache (:func:`_solver`)."""
+    return tuple(sorted((k, tuple(np.atleast_1d(np.asarray(v, float)).tolist())) for k, v in (fixed or {}).items()))
+
+
 @dataclass(frozen=True)
 class BatchFit:
     """Per-table results of :func:`fit_arrays` (leading axis: the tables)."""
@@ -749,12 +754,14 @@ def _check_stack(where, wo, wi, values, weight, valid):
 
 @functools.lru_cache(maxsize=16)
 def _batch_programs(run_full, par, shared):
-    """Jitted ``vmap`` of a solver's ``run_full`` over tables (directions shared or per table) and
-    of the natural values with the diagonal of their Jacobian in ``z``."""
+    """Jitted ``vmap`` over tables of the data-driven guesses' map to ``z``, of a solver's
+    ``run_full`` (directions shared or per table) and of the natural values with the diagonal of
+    their Jacobian in ``z``."""
     d_ax = None if shared else 0
+    to_z = jax.jit(jax.vmap(par.z_from_theta))
     run = jax.jit(jax.vmap(run_full, in_axes=(0, (d_ax, d_ax, 0, 0))))
     post = jax.jit(jax.vmap(lambda z: (par.theta_vector(z), jnp.diag(jax.jacfwd(par.theta_vector)(z)))))
-    return run, post
+    return to_z, run, post
 
 
 def fit_arrays(wo, wi, values, weight=None, *, model="plastic", method=DEFAULT_METHOD, loss="l2", fixed=None,
@@ -806,33 +813,34 @@ def fit_arrays(wo, wi, values, weight=None, *, model="plastic", method=DEFAULT_M
         raise ParameterError(f"{where}: method {method!r} cannot fit tables in a batch; use one of "
                              f"{[k for k, v in METHODS.items() if v.batched]}")
     Parametrization(model, C, fixed, tied)
-    fixed_items = tuple(sorted((k, tuple(np.atleast_1d(np.asarray(v, float)).tolist())) for k, v in (fixed or {}).items()))
+    fixed_items = _fixed_items(fixed)
     par, _, run_full, objective = _solver(model, C, fixed_items, tuple(tied), method, loss, None, 1.0, int(max_steps),
                                           float(rtol), float(atol))
     check_memory(where, B * N, C, len(column_groups(par)[0]) * starts, dtype)
-    w = np.ones(values.shape, values.dtype) if weight is None else np.asarray(weight)
-    ok_rows = np.any(w > 0, axis=2) if valid is None else np.asarray(valid, bool) & np.any(w > 0, axis=2)
-    shared = wo.ndim == 2 and wi.ndim == 2
-    WO = np.broadcast_to(wo, (B, N, 3)) if wo.ndim == 2 else wo
-    WI = np.broadcast_to(wi, (B, N, 3)) if wi.ndim == 2 else wi
-    guess = guesses_from_arrays(WO, WI, values, ok_rows, par, one=B == 1 and where == "fit")
     dt = dtype if dtype is not None else jnp.result_type(float)
     if np.dtype(dt) == np.float64 and not jax.config.jax_enable_x64:
         raise ParameterError(f"{where}: dtype float64 needs JAX's 64-bit mode (jax.config.update('jax_enable_x64', "
                              "True) before any JAX work); use float32 or switch it on")
+    w = np.ones(values.shape, values.dtype) if weight is None else np.asarray(weight)
+    ok_rows = np.any(w > 0, axis=2)
+    if valid is not None:
+        ok_rows &= np.asarray(valid, bool)
+    shared = wo.ndim == 2 and wi.ndim == 2
+    WO = np.broadcast_to(wo, (B, N, 3)) if wo.ndim == 2 else wo
+    WI = np.broadcast_to(wi, (B, N, 3)) if wi.ndim == 2 else wi
+    guess = guesses_from_arrays(WO, WI, values, ok_rows, par, one=B == 1)
+    to_z, run, post = _batch_programs(run_full, par, shared)
     if shared:
         dirs = (jnp.asarray(wo, dt), jnp.asarray(wi, dt))
     else:
         dirs = (jnp.asarray(WO, dt), jnp.asarray(WI, dt))
     arrays = dirs + (jnp.asarray(values, dt), jnp.asarray(w, dt))
-    base = np.asarray(jax.vmap(par.z_from_theta)({k: jnp.asarray(v, float) for k, v in guess.items()}))
-    base = base.astype(np.dtype(dt))
+    base = np.asarray(to_z({k: jnp.asarray(v, float) for k, v in guess.items()})).astype(np.dtype(dt))
     if starts > 1:
         full = (jnp.asarray(WO, dt), jnp.asarray(WI, dt)) + arrays[2:]
         z0 = _screened_starts(objective, par, base, starts, 0, full, batched=True)
     else:
         z0 = jnp.asarray(base[:, None, :])
-    run, post = _batch_programs(run_full, par, shared)
     z, obj, steps, ok, best, r, A, _ = run(z0, arrays)
     best = np.asarray(best)
     zb = jnp.take_along_axis(z, jnp.asarray(best)[:, None, None], axis=1)[:, 0]
