@@ -79,24 +79,25 @@ def fresnel_conductor(c, eta, k):
     return np.clip(0.5 * (rs + rp), 0, 1)
 
 
-def conductor_eval(wo, wi, alpha, eta, k):
-    """(N, C) rough conductor BRDF (GGX, separable Smith)."""
+def _ggx_lobe(wo, wi, alpha):
+    """``(ok, h, D G2 / (4 cos cos))`` of (N, 3) reflection pairs (GGX, separable Smith)."""
     a = max(float(alpha), ALPHA_MIN)
     co, ci = wo[:, 2], wi[:, 2]
     ok = (co > COS_EPS) & (ci > COS_EPS)
     h = _normalize(wo + wi)
-    spec = _d_ggx(h, a) * _g1(wo, h, a) * _g1(wi, h, a) / (4 * np.where(ok, co * ci, 1.0))
+    return ok, h, _d_ggx(h, a) * _g1(wo, h, a) * _g1(wi, h, a) / (4 * np.where(ok, co * ci, 1.0))
+
+
+def conductor_eval(wo, wi, alpha, eta, k):
+    """(N, C) rough conductor BRDF (GGX, separable Smith)."""
+    ok, h, spec = _ggx_lobe(wo, wi, alpha)
     F = fresnel_conductor(_dot(wo, h)[:, None], np.asarray(eta), np.asarray(k))
     return np.where(ok[:, None], spec[:, None] * F, 0.0)
 
 
 def diffuse_specular_eval(wo, wi, albedo, f0, alpha):
     """(N, C) albedo / pi plus a GGX lobe (separable Smith) with Schlick's Fresnel."""
-    a = max(float(alpha), ALPHA_MIN)
-    co, ci = wo[:, 2], wi[:, 2]
-    ok = (co > COS_EPS) & (ci > COS_EPS)
-    h = _normalize(wo + wi)
-    spec = _d_ggx(h, a) * _g1(wo, h, a) * _g1(wi, h, a) / (4 * np.where(ok, co * ci, 1.0))
+    ok, h, spec = _ggx_lobe(wo, wi, alpha)
     F = np.asarray(f0) + (1 - np.asarray(f0)) * (1 - np.clip(_dot(wo, h), 0, 1)[:, None]) ** 5
     return np.where(ok[:, None], np.asarray(albedo) / np.pi + spec[:, None] * F, 0.0)
 
@@ -133,14 +134,11 @@ def coat_transmittance_table(alpha, eta, order=COAT_ORDER, nodes=COAT_NODES):
 
 def plastic_eval(wo, wi, albedo, alpha, eta, table=None):
     """(N, C) rough plastic BRDF (internal reflection on), ``table`` from coat_transmittance_table."""
-    a = max(float(alpha), ALPHA_MIN)
     grid, T = coat_transmittance_table(alpha, eta) if table is None else table
     co, ci = wo[:, 2], wi[:, 2]
-    ok = (co > COS_EPS) & (ci > COS_EPS)
-    m = _normalize(wo + wi)
+    ok, m, lobe = _ggx_lobe(wo, wi, alpha)
     wom = _dot(wo, m)
-    f_r = _d_ggx(m, a) * _g1(wo, m, a) * _g1(wi, m, a) * fresnel_dielectric(wom, eta) / (
-        4 * np.where(ok, co * ci, 1.0))
+    f_r = lobe * fresnel_dielectric(wom, eta)
     f_r = np.where((wom > 0) & (abs(eta - 1) >= 1e-5), f_r, 0.0)
     x, w = _gl01(64)
     r_int = 1 - 2 * np.sum(w * x * np.interp(x, grid, T)) / eta**2

@@ -42,27 +42,17 @@ def peak_rss_mb():
     return float("nan")
 
 
-def truth_maps(H, W):
-    import numpy as np
-
-    yy, xx = np.mgrid[0:H, 0:W]
-    u, v = (xx + 0.5) / W, (yy + 0.5) / H
-    return {"alpha": 0.05 + 0.55 * u,
-            "albedo": np.stack([0.15 + 0.6 * v, 0.4 + 0.2 * u, 0.5 - 0.3 * v], -1),
-            "f0": np.stack([0.3 + 0.5 * v, 0.6 - 0.2 * u, 0.25 + 0.3 * u * v], -1)}
-
-
 def child_throughput(size, repeats, scipy_texels, workdir):
     import numpy as np
     from scipy.optimize import least_squares
 
     import _numpy_models as nm
     from _common import summarize
-    from data_synth.capture import render_capture
+    from data_synth.capture import ramp_maps, render_capture
     from matfit.fitting import Parametrization, guesses_from_arrays
     from matfit.maps import fit_map, load_capture
 
-    truth = truth_maps(size, size)
+    truth = ramp_maps(size, size)
     cap_dir = render_capture(Path(workdir) / "capture", truth, model="diffuse_specular", noise=0.01, fmt="png16")
     t = time.perf_counter()
     cap = load_capture(cap_dir)
@@ -121,7 +111,7 @@ def child_memory(size, rows, workdir):
     import jax.numpy as jnp
     import numpy as np
 
-    from data_synth.capture import capture_directions
+    from data_synth.capture import capture_directions, ramp_maps
     from matfit.maps import fit_map
     from matfit.models import DiffuseSpecular
 
@@ -130,11 +120,9 @@ def child_memory(size, rows, workdir):
     f = jax.jit(jax.vmap(lambda a, b, c: DiffuseSpecular(b, c, a).eval(jnp.asarray(cams), jnp.asarray(lights))))
     band = 64
 
-    def truth_band(r0, r1):  # the maps of truth_maps(size, size), rows r0..r1 (not held whole)
-        yy, xx = np.mgrid[r0:r1, 0:size]
-        u, v = (xx + 0.5) / size, (yy + 0.5) / size
-        return (0.05 + 0.55 * u, np.stack([0.15 + 0.6 * v, 0.4 + 0.2 * u, 0.5 - 0.3 * v], -1),
-                np.stack([0.3 + 0.5 * v, 0.6 - 0.2 * u, 0.25 + 0.3 * u * v], -1))
+    def truth_band(r0, r1):  # rows r0..r1 of the size x size maps (not held whole)
+        m = ramp_maps(size, size, rows=(r0, r1))
+        return m["alpha"], m["albedo"], m["f0"]
 
     # written band after band with plain writes (pages written through a mapping would count in
     # this process's resident memory); rows past `rows` stay a hole of zeros

@@ -28,7 +28,7 @@ from matfit.maps import write_exr, write_png
 
 from .geometry import sph
 
-__all__ = ["capture_directions", "render_capture", "THETA_H", "FORMATS"]
+__all__ = ["capture_directions", "render_capture", "ramp_maps", "THETA_H", "FORMATS"]
 
 #: Half-vector zeniths (degrees) swept for every camera: dense near the normal for narrow lobes,
 #: sparse further out for broad ones.
@@ -183,6 +183,38 @@ def _unit_dirs(what, v, n=None):
         raise ParameterError(f"render_capture: {what} must be non-zero directions above the horizon (z > 0)")
     a = a / norm
     return a if n is None else np.broadcast_to(a, (n, 3)).copy()
+
+
+def ramp_maps(height, width, rows=None):
+    """Smooth ``diffuse_specular`` parameter maps of a test capture: alpha 0.05 to 0.6 across the
+    columns, albedo 0.15-0.75 / 0.4-0.6 / 0.2-0.5 and F0 0.3-0.8 / 0.4-0.6 / 0.25-0.55 per channel
+    in ramps along the rows and columns.
+
+    Parameters
+    ----------
+    height, width : int
+        Size of the whole map.
+    rows : (start, stop), optional
+        Only these rows (a band of a map too large to hold whole).
+
+    Returns
+    -------
+    dict
+        ``{"alpha": (h, W), "albedo": (h, W, 3), "f0": (h, W, 3)}``.
+
+    Examples
+    --------
+    >>> from data_synth.capture import ramp_maps
+    >>> m = ramp_maps(4, 8)
+    >>> m["alpha"].shape, m["f0"].shape, round(float(m["alpha"].min()), 4)
+    ((4, 8), (4, 8, 3), 0.0844)
+    """
+    r0, r1 = (0, height) if rows is None else rows
+    yy, xx = np.mgrid[r0:r1, 0:width]
+    u, v = (xx + 0.5) / width, (yy + 0.5) / height
+    return {"alpha": 0.05 + 0.55 * u,
+            "albedo": np.stack([0.15 + 0.6 * v, 0.4 + 0.2 * u, 0.5 - 0.3 * v], -1),
+            "f0": np.stack([0.3 + 0.5 * v, 0.6 - 0.2 * u, 0.25 + 0.3 * u * v], -1)}
 
 
 def flat_field(shape):

@@ -16,6 +16,7 @@ import pytest
 
 from matfit.errors import ParameterError
 from matfit.maps import fit_map, gltf_maps, read_maps, write_maps
+from data_synth.capture import ramp_maps
 from matfit.models import DiffuseSpecular
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -45,15 +46,6 @@ def _directions(n=24, seed=3):
     return np.broadcast_to(wo, (n, 3)).copy(), wi
 
 
-def _truth(H, W):
-    yy, xx = np.mgrid[0:H, 0:W]
-    u, v = (xx + 0.5) / W, (yy + 0.5) / H
-    alpha = 0.05 + 0.55 * u
-    albedo = np.stack([0.15 + 0.6 * v, 0.4 + 0.2 * u, 0.5 - 0.3 * v], -1)
-    f0 = np.stack([0.3 + 0.5 * v, 0.6 - 0.2 * u, 0.25 + 0.3 * u * v], -1)
-    return {"albedo": albedo, "f0": f0, "alpha": alpha}
-
-
 def _render(truth, wo, wi):
     H, W = truth["alpha"].shape
     f = jax.jit(jax.vmap(lambda a, b, c: DiffuseSpecular(b, c, a).eval(jnp.asarray(wo), jnp.asarray(wi))))
@@ -64,7 +56,7 @@ def _render(truth, wo, wi):
 @pytest.fixture(scope="module")
 def noisy_map():
     wo, wi = _directions()
-    truth = _truth(24, 32)
+    truth = ramp_maps(24, 32)
     clean = _render(truth, wo, wi)
     noisy = clean * (1 + 0.01 * np.random.default_rng(0).standard_normal(clean.shape))
     return wo, wi, truth, clean, noisy, fit_map(wo, wi, noisy)
@@ -92,7 +84,7 @@ def test_standard_errors_are_calibrated(noisy_map):
 
 def test_noise_free_map_is_exact():
     wo, wi = _directions()
-    truth = _truth(6, 5)
+    truth = ramp_maps(6, 5)
     r = fit_map(wo, wi, _render(truth, wo, wi), dtype="float64")
     for k in truth:
         np.testing.assert_allclose(r.params[k], truth[k], rtol=1e-4)
@@ -144,7 +136,7 @@ def test_memmap_values_read_by_chunk_equal_in_memory(noisy_map, tmp_path):
 
 def test_smoothness_prior_reduces_error():
     wo, wi = _directions()
-    truth = _truth(16, 16)
+    truth = ramp_maps(16, 16)
     clean = _render(truth, wo, wi)
     noisy = clean * (1 + 0.05 * np.random.default_rng(1).standard_normal(clean.shape))
     plain = fit_map(wo, wi, noisy)
@@ -156,7 +148,7 @@ def test_smoothness_prior_reduces_error():
 
 def test_known_sigma():
     wo, wi = _directions()
-    truth = _truth(8, 8)
+    truth = ramp_maps(8, 8)
     clean = _render(truth, wo, wi)
     sigma = 0.01 * clean
     noisy = clean + sigma * np.random.default_rng(2).standard_normal(clean.shape)
@@ -303,20 +295,12 @@ def test_two_processes_equal_one_process(noisy_map, tmp_path):
 
 
 # --- captures end to end ----------------------------------------------------------------------
-def _capture_truth(H, W):
-    yy, xx = np.mgrid[0:H, 0:W]
-    u, v = (xx + 0.5) / W, (yy + 0.5) / H
-    return {"alpha": 0.05 + 0.55 * u,
-            "albedo": np.stack([0.15 + 0.6 * v, 0.4 + 0.2 * u, 0.5 - 0.3 * v], -1),
-            "f0": np.stack([0.3 + 0.5 * v, 0.6 - 0.2 * u, 0.25 + 0.3 * u * v], -1)}
-
-
 def test_capture_256_recovered(tmp_path):
     """A 256 x 256 capture, 24 images (16-bit sRGB PNG), 1 % noise, alpha 0.05-0.6."""
     from data_synth.capture import render_capture
     from matfit.maps import load_capture
 
-    truth = _capture_truth(256, 256)
+    truth = ramp_maps(256, 256)
     cap = load_capture(render_capture(tmp_path / "cap", truth, model="diffuse_specular", noise=0.01, fmt="png16"))
     assert cap.n_images == 24 and cap.valid.all()
     r = fit_map(cap.wo, cap.wi, cap.values, valid=cap.valid)
@@ -338,7 +322,7 @@ def test_cli_fit_map(tmp_path, capsys):
     from data_synth.capture import render_capture
     from matfit.cli import main
 
-    truth = _capture_truth(12, 16)
+    truth = ramp_maps(12, 16)
     cap = render_capture(tmp_path / "cap", truth, model="diffuse_specular", noise=0.0, fmt="exr")
     assert main(["fit-map", str(cap), "-o", str(tmp_path / "maps"), "--quiet"]) == 0
     out = capsys.readouterr().out
@@ -360,7 +344,7 @@ def test_capture_near_lights_with_vignetting_recovered(tmp_path):
     from data_synth.capture import render_capture
     from matfit.maps import load_capture
 
-    truth = _capture_truth(20, 24)
+    truth = ramp_maps(20, 24)
     cap = load_capture(render_capture(tmp_path / "cap", truth, model="diffuse_specular", noise=0.01, fmt="png16",
                                       geometry="positions", vignetting=True))
     assert not cap.shared_directions and cap.wo.shape == (20, 24, 24, 3)
