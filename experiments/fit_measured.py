@@ -16,7 +16,7 @@ all files share one compiled solver), loss ``e2`` with equal row weights.
 
 Each material / file gets a JSON under experiments/results/fit_measured/ as soon as it is done (a
 rerun skips what is there) and a report (matfit.report.write_report with the per-iteration loss
-history of matfit.report.loss_history) for its best family under reports/<name>/. The summary
+history of matfit.fitting.loss_history) for its best family under reports/<name>/. The summary
 (fit_measured.md, fit_measured.json) is rebuilt from the JSON files at the end (or with --summary).
 
 Usage: python experiments/fit_measured.py [SHARED] [--materials a,b] [--skip-rgl] [--skip-merl]
@@ -115,12 +115,10 @@ def fit_family(table, fam, args):
     from matfit.fitting import FitError, fit
     from matfit.fitting.fit import initial_guess
     from matfit.fitting.params import Parametrization
-    from matfit.fitting.select import GENERIC_INIT
 
     par = Parametrization(fam, table.n_channels)
     first = initial_guess(table, par)
-    eta = 1.0 if fam.startswith("conductor") else 1.5
-    second = {p.name: GENERIC_INIT.get(p.name, eta if p.name == "eta" else first.get(p.name)) for p in par.free}
+    second = par.family.generic_start(first, [p.name for p in par.free])
     best, binit, err = None, None, None
     for init in (None, second):
         if init is not None and best is not None and not args.two_inits:
@@ -168,7 +166,8 @@ def fam_record(res, init, seconds):
 
 def report(res, init, fit_table, report_table, name, title, args):
     """Loss history (re-run with a callback) and write_report; errors are recorded, not fatal."""
-    from matfit.report import loss_history, write_report
+    from matfit.fitting import loss_history
+    from matfit.report import write_report
 
     out = REPORTS / name
     t0 = time.perf_counter()

@@ -51,7 +51,7 @@ import numpy as np  # noqa: E402
 
 from data_synth import geometry  # noqa: E402
 from matfit import Table  # noqa: E402
-from matfit.fitting import Parametrization, fit_batch  # noqa: E402
+from matfit.fitting import Parametrization, fit_batch, get_family  # noqa: E402
 
 OUT = Path(__file__).parent / "results"
 NOISE = 0.01
@@ -89,6 +89,11 @@ GEOMETRIES = {
 
 #: Starts per table (the data-driven guess plus perturbed copies).
 STARTS = {"conductor": 1, "dielectric": 4, "plastic": 1, "car_paint": 1}
+
+
+def channels_of(family):
+    """RGB tables for a family with per-channel parameters, mono ones otherwise (the dielectric)."""
+    return 3 if get_family(family).has_channels else 1
 
 
 def _car_paint_base_f0(par, vec):
@@ -180,7 +185,7 @@ def run(family, R, seed, chunk, starts, max_steps, log, partial, rtol=1e-6, atol
     """Fit the tables ``part[0]::part[1]`` of the family's R random tables (all R are drawn, so
     the truths do not depend on the split); returns the raw per-table results of that part."""
     rng = np.random.default_rng(seed)
-    C = 1 if family == "dielectric" else 3
+    C = channels_of(family)
     wo, wi, info = geometry_for(family)
     par, truths, tables = make_tables(family, R, rng, C, wo, wi)
     ids = list(range(R))[part[0]::part[1]]
@@ -235,7 +240,7 @@ def from_partial(family, path, R, seed, part, settings):
     d = json.loads(Path(path).read_text())
     if d.get("stage", "pass 1") != "pass 1":
         raise ValueError(f"{path}: the run was stopped in its second pass; its first-pass values are not in the file")
-    C = 1 if family == "dielectric" else 3
+    C = channels_of(family)
     wo, wi, info = geometry_for(family)
     par, truths, tables = make_tables(family, R, np.random.default_rng(seed), C, wo, wi)
     ids = list(range(R))[part[0]::part[1]][:d["done"]]
@@ -264,7 +269,7 @@ def refit(family, R, seed, chunk, n_starts, max_steps, part, out, log):
     chi2 = np.asarray(summary["chi2_per_residual"])
     redo = [int(j) for j in np.flatnonzero(~(chi2 <= REFIT_CHI2))]
     n_sel, redo = len(redo), redo[part[0]::part[1]]
-    C = 1 if family == "dielectric" else 3
+    C = channels_of(family)
     wo, wi, _ = geometry_for(family)
     _, _, tables = make_tables(family, R, np.random.default_rng(seed), C, wo, wi)
     vals, objs, secs = [], [], []
@@ -308,7 +313,7 @@ def summarize(parts):
     cat = lambda key: np.concatenate([np.asarray(p[key], float) for p in parts])[order]  # noqa: E731
     truths, values, objective, n_res, cov = (cat(k) for k in ("truths", "values", "objective", "n_res", "fisher_cov"))
     chunk_s = [x for p in parts for x in p["chunk_s"]]
-    par = Parametrization(family, 1 if family == "dielectric" else 3, fixed=FIXED.get(family))
+    par = Parametrization(family, channels_of(family), fixed=FIXED.get(family))
     R = len(truths)
     n_raw = values.shape[1]
     if parts[0].get("R_planned") is None:

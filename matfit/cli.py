@@ -114,62 +114,27 @@ def _load_table(path, subsample=None, seed=0, with_full=False):
 
 
 def _cmd_fit(args):
-    from .fitting.methods import DEFAULT_METHOD
-    from .fitting.select import robust_fit
-    from .report import param_table, truth_from_table, write_report
+    from data_synth import truth_from_table
+
+    from .pipeline import run_pipeline
 
     table, full = _load_table(args.table, args.subsample, args.seed, with_full=True)
-    fixed = _parse_fixed(args.fixed)
-    method = DEFAULT_METHOD if args.method == "mcmc" else args.method
-    result = robust_fit(table, args.model, method=method, loss=args.loss, fixed=fixed, starts=args.starts,
-                        max_steps=args.max_steps, seed=args.seed)
-    posterior = None
-    if args.method == "mcmc":
-        try:
-            from .fitting.mcmc import sample_posterior
-        except ImportError:
-            raise ValueError("--method mcmc needs matfit.fitting.mcmc, which is not available") from None
-        noise = "table" if table.sigma is not None and args.loss == "l2" else "fit"
-        posterior = sample_posterior(table, model=args.model, fixed=fixed, loss=args.loss, noise=noise, start=result,
-                                     max_steps=args.mcmc_steps, seed=args.seed, progress=False)
-    truth = truth_from_table(table, args.model)
-    tparams = truth["params"] if truth else None
-    print(result.summary().splitlines()[0])
-    if posterior is not None:
-        print(posterior.summary().splitlines()[0])
-    print(param_table(result, tparams, posterior))
-    for w in getattr(result, "warnings", []):
-        print(f"  WARNING {w}")
-    if result.params and any(not any(l == k or l.startswith(k + "[") for l in result.labels) for k in result.params):
-        print("  fixed: " + ", ".join(f"{k}={np.asarray(v).round(6).tolist()}" for k, v in result.params.items()
-                                      if not any(l == k or l.startswith(k + "[") for l in result.labels)))
-    if args.report:
-        write_report(result, full, args.report, posterior=posterior, truth=truth,
-                     title=f"{args.model} fit of {Path(args.table).name}")
-        print(f"wrote report to {Path(args.report) / 'report.md'}")
-    if args.save_model:
-        from .export import save_model
-
-        save_model(args.save_model, result.model, family=args.model, source=str(args.table))
-        print(f"wrote {args.save_model}")
-    if args.export:
-        _write_export(result.model, args.export[0], args.export[1])
+    run_pipeline(table, args.model, method=None if args.method == "mcmc" else args.method, loss=args.loss,
+                 fixed=_parse_fixed(args.fixed), starts=args.starts, max_steps=args.max_steps, seed=args.seed,
+                 posterior_steps=args.mcmc_steps if args.method == "mcmc" else 0,
+                 truth=truth_from_table(table, args.model), report=args.report, report_table=full,
+                 title=f"{args.model} fit of {Path(args.table).name}", save_model=args.save_model, source=args.table,
+                 export=[tuple(args.export)] if args.export else ())
     return 0
 
 
-def _write_export(model, target, path):
-    from .export import export
-
-    r = export(model, target)
-    r.write(path)
-    print(r.summary())
-    print(f"wrote {path}")
-
-
 def _cmd_export(args):
-    from .export import load_model
+    from .export import export, load_model
 
-    _write_export(load_model(args.fit), args.to, args.output)
+    r = export(load_model(args.fit), args.to)
+    r.write(args.output)
+    print(r.summary())
+    print(f"wrote {args.output}")
     return 0
 
 

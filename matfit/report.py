@@ -38,142 +38,14 @@ import numpy as np
 
 from .io import dirs_to_half_diff
 
-__all__ = ["write_report", "truth_from_table", "colour_difference", "in_plane_slices", "loss_history"]
+__all__ = ["write_report", "colour_difference", "in_plane_slices", "param_table", "truth_for_label"]
 
 #: Above this many valid rows, residual maps and colour differences use a random subset.
 MAX_ROWS = 100_000
 _SWEEP = np.linspace(-89.0, 89.0, 357)  # signed theta_o (degrees) of the in-plane sweeps
-_FAMILY_OF = {"Lambert": "lambert", "RoughDielectric": "dielectric", "Plastic": "plastic",
-              "CoatedConductor": "car_paint"}
-
-
-# ------------------------------------------------------------------------------------ loss history
-def loss_history(table, family, loss="l2", method="lm", starts=4, seed=0, max_steps=256, rtol=1e-8, atol=1e-10,
-                 robust=None, robust_scale=1.0, fixed=None, tied=(), init=None, dtype=None):
-    """Per-iteration objective of every start of a :func:`matfit.fitting.fit` call.
-
-    ``fit`` solves all starts in one compiled, vectorized call and keeps only where each start
-    ended. This re-runs the same optimistix solver (same family, loss, starting points, tolerances
-    and step limit as ``fit`` with these arguments) one start at a time with a ``verbose``
-    callback that records, at every solver step, the objective ``0.5 * sum(r**2)`` at the last
-    accepted iterate (so each curve is non-increasing; a rejected Levenberg-Marquardt trial step
-    repeats the previous value). The last value of each curve is that start's final objective.
-
-    Parameters
-    ----------
-    table : matfit.Table
-    family, loss, method, starts, seed, max_steps, rtol, atol, robust, robust_scale, fixed, tied, init, dtype :
-        as for :func:`matfit.fitting.fit` (``method`` one of ``"lm"``, ``"gn"``, ``"dogleg"``).
-
-    Returns
-    -------
-    list of numpy arrays
-        One array per start: the objective after each solver step (entry 0: at the starting point).
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit import Table
-    >>> rng = np.random.default_rng(0)
-    >>> wo = np.tile([0.0, 0.0, 1.0], (40, 1)); wi = rng.normal(size=(40, 3)); wi[:, 2] = abs(wi[:, 2])
-    >>> wi /= np.linalg.norm(wi, axis=1, keepdims=True)
-    >>> t = Table(wo=wo, wi=wi, values=np.full((40, 1), 0.3 / np.pi), channels="mono")
-    >>> h = loss_history(t, "lambert", starts=2)  # start 0 (data-driven) is exact here; start 1 is perturbed
-    >>> bool(h[1][0] > 1e-4 and h[1][-1] < 1e-8 and np.all(np.diff(h[1]) <= 0))
-    True
-    """
-    import jax
-    import optimistix as optx
-
-    from .errors import ParameterError
-    from .fitting.fit import objective_fn, prepared_residual_fn, table_arrays, fit_starts
-    from .fitting.losses import check_loss
-    from .fitting.params import Parametrization
-
-    solvers = {"lm": optx.LevenbergMarquardt, "gn": optx.GaussNewton, "dogleg": optx.Dogleg}
-    if method not in solvers:
-        raise ParameterError(f"loss_history: method must be one of {sorted(solvers)} (solvers that take a "
-                             f"verbose callback), got {method!r}")
-    check_loss(loss, robust)
-    par = Parametrization(family, table.n_channels, {k: np.atleast_1d(np.asarray(v, float)).tolist()
-                                                     for k, v in (fixed or {}).items()}, tuple(tied))
-    prepare, fn_nc = prepared_residual_fn(par, loss, robust, float(robust_scale))
-    arrays = table_arrays(table, dtype)
-    # the starts fit() runs (init replaces entries of the data-driven guess of start 0)
-    z0s = fit_starts(table, par, starts, seed, jax.jit(objective_fn(prepare, fn_nc)), arrays, init)
-    prepared = prepare(arrays)
-
-    def fn(z, args):
-        return fn_nc(z, args).reshape(-1)
-
-    record = []
-
-    def verbose(**kw):
-        # kw values are (label, traced value); step 0 has no accepted iterate yet.
-        jax.debug.callback(lambda n, v: record.append((int(n), float(v))), kw["num_steps"][1],
-                           kw["loss_last_accepted_step"][1])
-
-    solver = solvers[method](rtol=float(rtol), atol=float(atol), verbose=verbose)
-
-    @jax.jit
-    def solve(z0, args):
-        sol = optx.least_squares(fn, solver, z0, args=args, max_steps=int(max_steps), throw=False)
-        r = fn(sol.value, args)
-        return 0.5 * jax.numpy.sum(r * r)
-
-    out = []
-    for z0 in z0s:
-        record.clear()
-        final = float(solve(z0, prepared))
-        jax.effects_barrier()
-        vals = [v for n, v in sorted(record) if n > 0]
-        out.append(np.asarray(vals + [final], float))
-    return out
 
 
 # ------------------------------------------------------------------------------------ truth
-def truth_from_table(table, family=None):
-    """Ground truth of a synthetic table (``provenance["ground_truth"]`` written by data_synth).
-
-    Returns ``{"family": name or None, "params": dict or None, "model": model or None}``, or None when
-    the table carries no ground truth. ``params`` holds the family's parameter values (a metal's
-    ``eta``, ``k`` come from the recorded n, k table) when the true model belongs to ``family`` (or to
-    the family it maps to, when ``family`` is None) and the scene is not spectral; ``model`` is the
-    true matfit model, rebuilt from the scene, when its channels are the table's.
-    """
-    gt = (table.provenance or {}).get("ground_truth")
-    if not gt or "params" not in gt:
-        return None
-    spec = dict(gt["params"])
-    name = spec.get("model", gt.get("model"))
-    fam = _FAMILY_OF.get(name)
-    if name == "RoughConductor":
-        fam = "conductor_beckmann" if spec.get("distribution") == "beckmann" else "conductor"
-    spectral = (gt.get("effects", {}).get("colour", {}) or {}).get("mode") == "spectral"
-    if "metal" in spec and "metal_nk" in gt and not spectral:
-        n, k = gt["metal_nk"][spec["metal"]]
-        spec["eta"], spec["k"] = n, k
-    params = None
-    if fam is not None and (family is None or family == fam) and not spectral:
-        from .fitting import get_family
-
-        params = {p.name: np.asarray(spec[p.name], float) for p in get_family(fam).params if p.name in spec}
-        # A default the scene did not set is the model's own default: leave it out of the comparison.
-    model = None
-    if not spectral:
-        try:
-            from data_synth.scene import Scene
-
-            sc = Scene(name=str(gt.get("scene", "truth")), seed=int(gt.get("seed", 0)), geometry=gt.get("geometry", {}),
-                       material=gt["params"], effects=gt["effects"])
-            model = sc.build_model()
-            if model.channels not in (1, table.n_channels):
-                model = None
-        except Exception:  # noqa: BLE001 - the truth model is a nicety of the plots
-            model = None
-    return {"family": fam, "params": params, "model": model}
-
-
 def _normalize_truth(truth, result, channels):
     """``(params dict or None, model or None)`` from what the caller gave as ``truth``."""
     if truth is None:

@@ -1,4 +1,4 @@
-"""matfit.report.loss_history: the per-iteration objective of each start of fit(), and its place in reports."""
+"""matfit.fitting.loss_history: the per-iteration objective of each start of fit(), and its place in reports."""
 from __future__ import annotations
 
 import json
@@ -9,7 +9,8 @@ import pytest
 from matfit import Table
 from matfit.errors import ParameterError
 from matfit.fitting import fit
-from matfit.report import loss_history, write_report
+from matfit.fitting import loss_history
+from matfit.report import write_report
 
 
 def _table(rng, n=300):

@@ -16,7 +16,8 @@ from data_synth import load_scene, parse_scene, synthesize
 from matfit.cli import main
 from matfit.fitting import compare_models, recommend
 from matfit.io import save
-from matfit.report import in_plane_slices, truth_from_table, write_report
+from data_synth import truth_from_table
+from matfit.report import in_plane_slices, write_report
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 ALBEDO = [0.6, 0.3, 0.2]

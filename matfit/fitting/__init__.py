@@ -4,10 +4,10 @@ from .fit import (METHODS, BatchFit, FitError, FitResult, fit, fit_arrays, fit_b
                   initial_guesses)
 from .losses import LOSSES, residuals
 from .methods import DEFAULT_METHOD, Method, get_method
-from .params import FAMILIES, Family, Param, Parametrization, get_family
+from .params import FAMILIES, Family, Param, Parametrization, TruthMap, family_describing, get_family
 
 __all__ = [
-    "FAMILIES", "Family", "Param", "Parametrization", "get_family",
+    "FAMILIES", "Family", "Param", "Parametrization", "TruthMap", "family_describing", "get_family",
     "LOSSES", "residuals", "DEFAULT_METHOD", "Method", "get_method",
     "METHODS", "FitError", "FitResult", "fit", "fit_batch", "initial_guess", "initial_guesses",
     "BatchFit", "fit_arrays", "guesses_from_arrays",
@@ -16,5 +16,6 @@ from .mcmc import NOISE_MODES, LogProb, PosteriorResult, SamplingError, make_log
 
 __all__ += ["NOISE_MODES", "LogProb", "PosteriorResult", "SamplingError", "make_log_prob", "sample_posterior"]
 from .select import ModelComparison, compare_models, recommend, robust_fit  # noqa: E402
+from ._history import loss_history  # noqa: E402
 
-__all__ += ["ModelComparison", "compare_models", "recommend", "robust_fit"]
+__all__ += ["ModelComparison", "compare_models", "recommend", "robust_fit", "loss_history"]

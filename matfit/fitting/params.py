@@ -24,15 +24,56 @@ from ..models import CoatedConductor, DiffuseSpecular, Lambert, Plastic, RoughCo
 
 @dataclass(frozen=True)
 class Param:
-    """One fittable parameter: its name, bounds and whether it has a colour-channel axis."""
+    """One fittable parameter: its name, bounds and whether it has a colour-channel axis.
+
+    Parameters
+    ----------
+    name : str
+        The name: a key of a fit's ``params`` and of ``fixed`` / ``init`` / ``tied``.
+    lower, upper : float
+        The open range the parameter is fitted in (``upper = np.inf``: bounded below only).
+    per_channel : bool, default False
+        True when the parameter has a colour-channel axis (one value per channel unless tied).
+    doc : str
+        One line for reports and the docs.
+    generic : float, optional
+        The generic mid-range start :func:`~matfit.fitting.robust_fit` tries beside the
+        data-driven guess (None: that guess's value).
+
+    Examples
+    --------
+    >>> from matfit.fitting import Param
+    >>> p = Param("alpha", 1e-3, 1.5, doc="GGX width", generic=0.2)
+    >>> round(float(p.from_unconstrained(p.to_unconstrained(0.3))), 6)
+    0.3
+    """
 
     name: str
     lower: float
     upper: float  # np.inf: bounded below only
     per_channel: bool = False
     doc: str = ""
+    generic: Optional[float] = None
 
     def to_unconstrained(self, theta):
+        """The unconstrained ``z`` of a value ``theta`` (clipped just inside the range).
+
+        Parameters
+        ----------
+        theta : array_like
+            Values in the parameter's range.
+
+        Returns
+        -------
+        jax.Array
+            ``logit((theta - lower) / (upper - lower))``, or ``log(theta - lower)`` when ``upper`` is infinite.
+
+        Examples
+        --------
+        >>> from matfit.fitting import Param
+        >>> float(Param("albedo", 0.0, 1.0).to_unconstrained(0.5))
+        0.0
+        """
         theta = jnp.asarray(theta)
         if np.isinf(self.upper):
             return jnp.log(jnp.maximum(theta - self.lower, 1e-30))
@@ -40,43 +81,136 @@ class Param:
         return jnp.log(t) - jnp.log1p(-t)
 
     def from_unconstrained(self, z):
+        """The value at unconstrained ``z``: the inverse of :meth:`to_unconstrained`.
+
+        Parameters
+        ----------
+        z : array_like
+            Unconstrained coordinates.
+
+        Returns
+        -------
+        jax.Array
+            ``lower + (upper - lower) sigmoid(z)``, or ``lower + exp(z)`` when ``upper`` is infinite.
+
+        Examples
+        --------
+        >>> from matfit.fitting import Param
+        >>> float(Param("albedo", 0.0, 1.0).from_unconstrained(0.0))
+        0.5
+        """
         if np.isinf(self.upper):
             return self.lower + jnp.exp(z)
         return self.lower + (self.upper - self.lower) * jax.nn.sigmoid(z)
 
     def log_jacobian(self, z):
-        """log |d theta / d z| (for priors expressed on theta when sampling in z)."""
+        """``log |d theta / d z|`` (for priors expressed on theta when sampling in z).
+
+        Parameters
+        ----------
+        z : array_like
+            Unconstrained coordinates.
+
+        Returns
+        -------
+        jax.Array
+            The log-derivative of :meth:`from_unconstrained` at ``z``, elementwise.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from matfit.fitting import Param
+        >>> round(float(np.exp(Param("albedo", 0.0, 1.0).log_jacobian(0.0))), 6)
+        0.25
+        """
         if np.isinf(self.upper):
             return z
         return jnp.log(self.upper - self.lower) + jax.nn.log_sigmoid(z) + jax.nn.log_sigmoid(-z)
 
 
 @dataclass(frozen=True)
+class TruthMap:
+    """Which true models of a synthetic table a family describes exactly.
+
+    A data_synth scene records its material as ``{"model": <class name>, <parameter>: value, ...}``
+    (``provenance["ground_truth"]["params"]``). The family describes it when the class name is
+    ``model`` and every key of ``where`` holds one of the listed values (None: the key is absent).
+    The parameters share the family's names.
+
+    Parameters
+    ----------
+    model : str
+        The matfit model class the scene names.
+    where : mapping of str to tuple, optional
+        Static options the true model must have, e.g. ``{"distribution": (None, "ggx")}``.
+
+    Examples
+    --------
+    >>> from matfit.fitting import TruthMap
+    >>> t = TruthMap("RoughConductor", {"distribution": (None, "ggx")})
+    >>> t.matches({"model": "RoughConductor", "alpha": 0.2}), t.matches({"model": "RoughConductor", "distribution": "beckmann"})
+    (True, False)
+    """
+
+    model: str
+    where: Mapping = field(default_factory=dict)
+
+    def matches(self, spec) -> bool:
+        """True when the material ``spec`` (a scene's material dict) belongs to the family.
+
+        Parameters
+        ----------
+        spec : mapping
+            ``{"model": name, ...}`` as a scene records it.
+
+        Returns
+        -------
+        bool
+
+        Examples
+        --------
+        >>> from matfit.fitting import TruthMap
+        >>> TruthMap("Lambert").matches({"model": "Lambert", "albedo": 0.5})
+        True
+        """
+        return spec.get("model") == self.model and all(spec.get(k) in v for k, v in self.where.items())
+
+
+@dataclass(frozen=True)
 class Family:
     """A model family: its parameters, how to build the model from their values, and what it
-    knows about starting a fit.
+    knows about starting a fit and about the synthetic tables it describes.
 
-    Attributes
+    Nothing outside a family's definition branches on its name: the starts, the refinement of
+    the data-driven guess, the generic start and the truth mapping live here.
+
+    Parameters
     ----------
     name : str
+        The key of :data:`FAMILIES` (``fit(table, model=name)``).
     params : tuple of Param
+        The parameters, in the order of the unconstrained vector.
     build : callable
         ``build(values, C) -> model`` from a dict of every parameter's value.
     doc : str
+        One line for reports and the docs.
     starts : mapping, optional
         Constant starting values that replace the generic data-driven ones (e.g. a dielectric
         coat's ``eta`` 1.5).
     refine : callable, optional
         ``refine(WO, WI, V, M, guess, family)``: refines the data-driven guess of a stack of
         tables in place (the conductor families read eta and k off the Fresnel curve).
+    truth : TruthMap, optional
+        The true models of synthetic tables the family describes exactly (reports compare the
+        fit with them).
 
     Examples
     --------
     >>> from matfit.fitting import Family, Param
     >>> from matfit.models import Lambert
     >>> fam = Family("grey", (Param("albedo", 0.0, 1.0),), lambda p, C: Lambert(p["albedo"]), starts={"albedo": 0.5})
-    >>> fam.starts["albedo"]
-    0.5
+    >>> fam.starts["albedo"], fam.has_channels
+    (0.5, False)
     """
 
     name: str
@@ -85,48 +219,126 @@ class Family:
     doc: str = ""
     starts: Mapping = field(default_factory=dict, compare=False)
     refine: Optional[Callable] = None
+    truth: Optional[TruthMap] = None
+
+    @property
+    def has_channels(self) -> bool:
+        """True when some parameter has a colour-channel axis (a mono table suits the family
+        otherwise: ``dielectric``)."""
+        return any(p.per_channel for p in self.params)
+
+    def generic_start(self, guess, free=None) -> dict:
+        """The generic mid-range start: each parameter's :attr:`Param.generic`, else its value in ``guess``.
+
+        Parameters
+        ----------
+        guess : mapping
+            A start to take the values from where a parameter has no generic value (the
+            data-driven guess).
+        free : sequence of str, optional
+            The parameters to include (default: all of them).
+
+        Returns
+        -------
+        dict
+
+        Examples
+        --------
+        >>> from matfit.fitting import get_family
+        >>> get_family("conductor").generic_start({"alpha": 0.05, "eta": 0.2, "k": 4.0})
+        {'alpha': 0.2, 'eta': 1.0, 'k': 3.0}
+        """
+        names = [p.name for p in self.params] if free is None else list(free)
+        by_name = {p.name: p for p in self.params}
+        return {n: by_name[n].generic if by_name[n].generic is not None else guess.get(n) for n in names}
+
+    def describes(self, spec) -> bool:
+        """True when the family describes the true material ``spec`` of a synthetic table exactly.
+
+        Parameters
+        ----------
+        spec : mapping
+            A scene's material (``{"model": name, ...}``).
+
+        Returns
+        -------
+        bool
+
+        Examples
+        --------
+        >>> from matfit.fitting import get_family
+        >>> get_family("conductor_beckmann").describes({"model": "RoughConductor", "distribution": "beckmann"})
+        True
+        """
+        return self.truth is not None and self.truth.matches(spec)
+
+
+def family_describing(spec):
+    """The registered family that describes the true material ``spec`` exactly, or None.
+
+    Parameters
+    ----------
+    spec : mapping
+        A scene's material (``{"model": name, ...}``, as data_synth records it).
+
+    Returns
+    -------
+    Family or None
+
+    Examples
+    --------
+    >>> from matfit.fitting import family_describing
+    >>> family_describing({"model": "RoughConductor", "alpha": 0.2}).name
+    'conductor'
+    >>> family_describing({"model": "Blend"}) is None
+    True
+    """
+    return next((f for f in FAMILIES.values() if f.describes(spec)), None)
 
 
 def _conductor(distribution):
     return lambda p, C: RoughConductor(p["alpha"], p["eta"], p["k"], distribution=distribution)
 
 
+def _alpha(what, lower=1e-3, upper=1.5, name="alpha", generic=0.2):
+    return Param(name, lower, upper, False, what, generic=generic)
+
+
+_METAL = (Param("eta", 0.05, 8.0, True, "real index", generic=1.0), Param("k", 0.0, 12.0, True, "extinction", generic=3.0))
+_ALBEDO = Param("albedo", 0.0, 1.0, True, "diffuse albedo", generic=0.5)
+
 FAMILIES: dict[str, Family] = {
     "lambert": Family(
-        "lambert", (Param("albedo", 0.0, 1.0, True, "diffuse albedo"),),
-        lambda p, C: Lambert(p["albedo"]), "Lambertian diffuse"),
+        "lambert", (_ALBEDO,), lambda p, C: Lambert(p["albedo"]), "Lambertian diffuse", truth=TruthMap("Lambert")),
     "conductor": Family(
-        "conductor",
-        (Param("alpha", 1e-3, 1.5, False, "GGX width"), Param("eta", 0.05, 8.0, True, "real index"),
-         Param("k", 0.0, 12.0, True, "extinction")),
-        _conductor("ggx"), "rough conductor, GGX, separable Smith", refine=refine_conductor("ggx")),
+        "conductor", (_alpha("GGX width"),) + _METAL,
+        _conductor("ggx"), "rough conductor, GGX, separable Smith", refine=refine_conductor("ggx"),
+        truth=TruthMap("RoughConductor", {"distribution": (None, "ggx")})),
     "conductor_beckmann": Family(
-        "conductor_beckmann",
-        (Param("alpha", 1e-3, 1.5, False, "Beckmann width"), Param("eta", 0.05, 8.0, True, "real index"),
-         Param("k", 0.0, 12.0, True, "extinction")),
-        _conductor("beckmann"), "rough conductor, Beckmann, separable Smith", refine=refine_conductor("beckmann")),
+        "conductor_beckmann", (_alpha("Beckmann width"),) + _METAL,
+        _conductor("beckmann"), "rough conductor, Beckmann, separable Smith", refine=refine_conductor("beckmann"),
+        truth=TruthMap("RoughConductor", {"distribution": ("beckmann",)})),
     "dielectric": Family(
-        "dielectric",
-        (Param("alpha", 1e-3, 1.5, False, "GGX width"), Param("eta", 1.01, 4.0, False, "relative index")),
+        "dielectric", (_alpha("GGX width"), Param("eta", 1.01, 4.0, False, "relative index", generic=1.5)),
         lambda p, C: RoughDielectric(p["alpha"], p["eta"]), "rough dielectric (reflection and transmission)",
-        starts={"eta": 1.5}),
+        starts={"eta": 1.5}, truth=TruthMap("RoughDielectric", {"distribution": (None, "ggx")})),
     "plastic": Family(
         "plastic",
-        (Param("albedo", 0.0, 1.0, True, "base albedo"), Param("alpha", 1e-3, 1.5, False, "coat GGX width"),
-         Param("eta", 1.05, 3.0, False, "coat index")),
+        (Param("albedo", 0.0, 1.0, True, "base albedo", generic=0.5), _alpha("coat GGX width"),
+         Param("eta", 1.05, 3.0, False, "coat index", generic=1.5)),
         lambda p, C: Plastic(p["albedo"], p["alpha"], p["eta"]), "Lambertian base under a rough coat",
-        starts={"eta": 1.5}),
+        starts={"eta": 1.5}, truth=TruthMap("Plastic")),
     "car_paint": Family(
         "car_paint",
-        (Param("alpha_base", 1e-3, 1.5, False, "metal GGX width"), Param("eta_base", 0.05, 8.0, True, "metal index"),
-         Param("k_base", 0.0, 12.0, True, "metal extinction"), Param("alpha_coat", 1e-3, 1.0, False, "coat GGX width"),
-         Param("eta_coat", 1.05, 2.5, False, "coat index")),
+        (_alpha("metal GGX width", name="alpha_base"), Param("eta_base", 0.05, 8.0, True, "metal index", generic=1.0),
+         Param("k_base", 0.0, 12.0, True, "metal extinction", generic=3.0),
+         _alpha("coat GGX width", upper=1.0, name="alpha_coat", generic=0.1),
+         Param("eta_coat", 1.05, 2.5, False, "coat index", generic=1.5)),
         lambda p, C: CoatedConductor(p["alpha_base"], p["eta_base"], p["k_base"], p["alpha_coat"], p["eta_coat"]),
-        "rough metal under a rough clear coat"),
+        "rough metal under a rough clear coat", truth=TruthMap("CoatedConductor")),
     "diffuse_specular": Family(
         "diffuse_specular",
-        (Param("albedo", 0.0, 1.0, True, "diffuse albedo"), Param("f0", 0.0, 1.0, True, "specular F0 (Schlick)"),
-         Param("alpha", 1e-3, 1.5, False, "GGX width")),
+        (_ALBEDO, Param("f0", 0.0, 1.0, True, "specular F0 (Schlick)"), _alpha("GGX width")),
         lambda p, C: DiffuseSpecular(p["albedo"], p["f0"], p["alpha"]),
         "Lambertian albedo plus a GGX lobe with Schlick's Fresnel (the texel model of captures)"),
 }

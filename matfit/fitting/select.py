@@ -33,10 +33,6 @@ from .params import Parametrization, get_family
 
 __all__ = ["compare_models", "ModelComparison", "recommend", "robust_fit", "DEFAULT_TOL"]
 
-#: Generic mid-range starting values, tried next to the data-driven guess by :func:`robust_fit`.
-GENERIC_INIT = {"albedo": 0.5, "alpha": 0.2, "alpha_base": 0.2, "alpha_coat": 0.1, "k": 3.0, "eta_base": 1.0,
-                "k_base": 3.0, "eta_coat": 1.5}
-
 #: Relative hold-out tolerance of the recommendation.
 DEFAULT_TOL = 0.02
 
@@ -104,7 +100,7 @@ def robust_fit(table, model, init=None, fixed=None, tied=(), **fit_kwargs):
     """:func:`~matfit.fitting.fit` from two starting points; the result of lower objective.
 
     The first start is ``init`` or :func:`~matfit.fitting.initial_guess`; the second is a generic mid-range
-    point (:data:`GENERIC_INIT`; ``eta`` 1.0 for conductors, 1.5 otherwise). Both runs share one
+    point (:meth:`~matfit.fitting.Family.generic_start`: each parameter's ``generic`` value). Both runs share one
     compiled solver, so the second costs only its iterations. This guards against the data-driven
     guess landing in a poor basin (e.g. a conductor's ``k`` at its bound when a sparse table makes
     the peak look wide).
@@ -115,8 +111,7 @@ def robust_fit(table, model, init=None, fixed=None, tied=(), **fit_kwargs):
     if init is not None:
         par.check_theta("robust_fit: init", init)
     first = dict(init) if init is not None else initial_guess(table, par)
-    eta = 1.0 if model.startswith("conductor") else 1.5
-    second = {p.name: GENERIC_INIT.get(p.name, eta if p.name == "eta" else first.get(p.name)) for p in par.free}
+    second = par.family.generic_start(first, [p.name for p in par.free])
     best, err = None, None
     for start in (first, second):
         try:
