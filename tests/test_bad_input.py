@@ -357,7 +357,7 @@ def test_fit_refuses_a_table_too_large_for_the_memory_before_allocating(monkeypa
 
     from matfit.fitting import FitError, fit
 
-    fm = importlib.import_module("matfit.fitting.fit")
+    fm = importlib.import_module("matfit.fitting._memory")
     monkeypatch.setattr(fm, "available_memory", lambda: 2**20)  # 1 MiB available
     wo = np.tile([0.0, 0.0, 1.0], (5000, 1))
     t = Table(wo=wo, wi=wo, values=np.full((5000, 3), 0.1), channels="rgb")

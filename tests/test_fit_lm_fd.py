@@ -11,7 +11,7 @@ import pytest
 
 from matfit import Table
 from matfit.fitting import fit, fit_batch, initial_guess
-from matfit.fitting.fit import _by_channel, _residual_fn, table_arrays
+from matfit.fitting.fit import by_channel, residual_fn, table_arrays
 from matfit.fitting.lm import column_groups, jacobian
 from matfit.fitting.params import Parametrization
 from matfit.models import RoughConductor
@@ -44,7 +44,7 @@ def test_column_groups_structure():
 def test_grouped_jacobian_matches_forward_mode(family, x64):
     t = _table(n=24)
     par = Parametrization(family, 3)
-    fn = _by_channel(_residual_fn(par, "e2", None, 1.0))
+    fn = by_channel(residual_fn(par, "e2", None, 1.0))
     arrays = table_arrays(t, jnp.float64)
     z = jnp.asarray(np.random.default_rng(1).normal(0, 0.5, par.size))
     r, J = jacobian(fn, z, arrays, *column_groups(par), central=True)
@@ -66,7 +66,7 @@ def test_lm_fd_reaches_scipy_loss(x64):
     # least_squares(ftol=1e-8) does, once a step lowers the objective by less than 1e-8 of it.
     r = fit(t, model="conductor", method="lm_fd", starts=1, dtype=jnp.float64, rtol=1e-12, atol=1e-14)
     par = Parametrization("conductor", 3)
-    fn = jax.jit(_residual_fn(par, "l2", None, 1.0))
+    fn = jax.jit(residual_fn(par, "l2", None, 1.0))
     arrays = table_arrays(t, jnp.float64)
     z0 = np.asarray(par.z_from_theta(initial_guess(t, par)))
     ref = least_squares(lambda z: np.asarray(fn(jnp.asarray(z), arrays)), z0, xtol=1e-12, ftol=1e-12, gtol=1e-12)
@@ -92,13 +92,13 @@ def test_large_table_multi_start_solves_the_best_subset_start_in_full(x64, monke
     best's, and the result says how it was computed."""
     import importlib
 
-    fm = importlib.import_module("matfit.fitting.fit")
+    fm = importlib.import_module("matfit.fitting._solver")  # where the subset size and the solver cache live
     t = _table(n=4 * 8192 + 1000, seed=4, noise=0.01)
     monkeypatch.setattr(fm, "COARSE_ROWS", 8192)
-    fm._solver.cache_clear()
+    fm.compiled_solver.cache_clear()
     multi = fit(t, model="conductor", method="lm_fd", loss="l2", starts=3)
     one = fit(t, model="conductor", method="lm_fd", loss="l2", starts=1)
-    fm._solver.cache_clear()
+    fm.compiled_solver.cache_clear()
     objs = np.asarray(multi.start_objectives)
     assert objs.shape == (3,) and np.all(np.isfinite(objs))
     assert multi.objective == objs.min() <= one.objective * (1 + 1e-12)
@@ -112,16 +112,16 @@ def test_large_table_subset_start_reaches_the_plain_minimum(x64, monkeypatch):
     with the truth recovered."""
     import importlib
 
-    fm = importlib.import_module("matfit.fitting.fit")  # the module (the package exports the function)
+    fm = importlib.import_module("matfit.fitting._solver")  # where the subset size and the solver cache live
 
     t = _table(n=4 * 8192 + 1000, seed=3, noise=0.01)
     monkeypatch.setattr(fm, "COARSE_ROWS", 8192)
-    fm._solver.cache_clear()
+    fm.compiled_solver.cache_clear()
     coarse = fit(t, model="conductor", method="lm_fd", loss="l2", starts=1)
     monkeypatch.setattr(fm, "COARSE_ROWS", 10**9)  # no subset: the plain solve
-    fm._solver.cache_clear()
+    fm.compiled_solver.cache_clear()
     plain = fit(t, model="conductor", method="lm_fd", loss="l2", starts=1)
-    fm._solver.cache_clear()
+    fm.compiled_solver.cache_clear()
     assert coarse.converged and plain.converged
     assert abs(coarse.objective - plain.objective) <= 1e-7 * plain.objective
     np.testing.assert_allclose(coarse.values, plain.values, rtol=1e-3, atol=1e-4)

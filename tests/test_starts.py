@@ -9,7 +9,8 @@ import pytest
 from data_synth import geometry
 from matfit import Table
 from matfit.fitting import Parametrization, fit_batch
-from matfit.fitting.fit import SCREEN_PER_START, _candidates, _residual_fn, fit_starts, initial_guess
+from matfit.fitting._starts import candidates
+from matfit.fitting.fit import SCREEN_PER_START, fit_starts, initial_guess, residual_fn
 from matfit.models import RoughConductor
 
 
@@ -22,7 +23,7 @@ def table():
 
 
 def _objective(par, table):
-    fn = _residual_fn(par, "l2", None, 1.0)
+    fn = residual_fn(par, "l2", None, 1.0)
     a = table.as_jax(jnp.float64)
     arrays = (a.wo, a.wi, a.values, a.weight)
 
@@ -36,14 +37,14 @@ def _objective(par, table):
 def test_starts_are_guess_then_best_candidates(table, x64):
     par = Parametrization("conductor", 3)
     one, arrays = _objective(par, table)
-    fn = _residual_fn(par, "l2", None, 1.0)
+    fn = residual_fn(par, "l2", None, 1.0)
     obj = jax.jit(jax.vmap(lambda z, a: 0.5 * jnp.sum(fn(z, a) ** 2), in_axes=(0, None)))
     n = 4
     z0s = np.asarray(fit_starts(table, par, n, 7, obj, arrays))
     assert z0s.shape == (n, par.size)
     guess = np.asarray(par.z_from_theta(initial_guess(table, par)))
     np.testing.assert_allclose(z0s[0], guess)
-    cand = np.asarray(_candidates(par, jnp.asarray(guess)[None], n - 1, 7))[0]
+    cand = np.asarray(candidates(par, jnp.asarray(guess)[None], n - 1, 7))[0]
     assert cand.shape == (SCREEN_PER_START * (n - 1), par.size)
     values = np.array([one(c) for c in cand])
     best = cand[np.argsort(values)[: n - 1]]
@@ -62,14 +63,14 @@ def test_fit_batch_starts_include_the_guess(table, x64):
 
 
 def test_percentile10_matches_numpy():
-    from matfit.fitting.fit import _percentile10
+    from matfit.fitting._starts import percentile10
 
     rng = np.random.default_rng(3)
     v = rng.random((7, 50, 3))
     valid = rng.random((7, 50)) < 0.6
     valid[0] = False
     valid[0, 4] = True  # one valid row
-    got = _percentile10(v, valid)
+    got = percentile10(v, valid)
     ref = np.stack([np.percentile(v[b][valid[b]], 10, axis=0) for b in range(7)])
     np.testing.assert_allclose(got, ref, rtol=1e-14)
 

@@ -7,11 +7,13 @@ iterates.
 
 from __future__ import annotations
 
+import jax
 import numpy as np
 
 from ..errors import ParameterError
 from .fit import fit_starts, objective_fn, prepared_residual_fn, table_arrays
 from .losses import check_loss
+from .methods import METHODS
 from .params import Parametrization
 
 __all__ = ["loss_history"]
@@ -52,13 +54,9 @@ def loss_history(table, family, loss="l2", method="lm", starts=4, seed=0, max_st
     >>> bool(h[1][0] > 1e-4 and h[1][-1] < 1e-8 and np.all(np.diff(h[1]) <= 0))
     True
     """
-    import jax
-    import optimistix as optx
-
-
-    solvers = {"lm": optx.LevenbergMarquardt, "gn": optx.GaussNewton, "dogleg": optx.Dogleg}
-    if method not in solvers:
-        raise ParameterError(f"loss_history: method must be one of {sorted(solvers)} (solvers that take a "
+    traced = sorted(n for n, m in METHODS.items() if m.solver.traces)
+    if method not in traced:
+        raise ParameterError(f"loss_history: method must be one of {traced} (solvers that take a "
                              f"verbose callback), got {method!r}")
     check_loss(loss, robust)
     par = Parametrization(family, table.n_channels, {k: np.atleast_1d(np.asarray(v, float)).tolist()
@@ -68,24 +66,13 @@ def loss_history(table, family, loss="l2", method="lm", starts=4, seed=0, max_st
     # the starts fit() runs (init replaces entries of the data-driven guess of start 0)
     z0s = fit_starts(table, par, starts, seed, jax.jit(objective_fn(prepare, fn_nc)), arrays, init)
     prepared = prepare(arrays)
-
-    def fn(z, args):
-        return fn_nc(z, args).reshape(-1)
-
+    solver = METHODS[method].build(rtol, atol)
     record = []
-
-    def verbose(**kw):
-        # kw values are (label, traced value); step 0 has no accepted iterate yet.
-        jax.debug.callback(lambda n, v: record.append((int(n), float(v))), kw["num_steps"][1],
-                           kw["loss_last_accepted_step"][1])
-
-    solver = solvers[method](rtol=float(rtol), atol=float(atol), verbose=verbose)
 
     @jax.jit
     def solve(z0, args):
-        sol = optx.least_squares(fn, solver, z0, args=args, max_steps=int(max_steps), throw=False)
-        r = fn(sol.value, args)
-        return 0.5 * jax.numpy.sum(r * r)
+        return solver.trace(lambda z, a: fn_nc(z, a).reshape(-1), z0, args, int(max_steps),
+                            lambda n, v: record.append((n, v)))
 
     out = []
     for z0 in z0s:

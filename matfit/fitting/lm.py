@@ -79,13 +79,15 @@ References
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import NamedTuple, Optional
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["column_groups", "jacobian", "lm_fd", "LMResult", "normal_equations", "GRAM_BLOCK"]
+__all__ = ["column_groups", "jacobian", "lm_fd", "LMResult", "normal_equations", "GRAM_BLOCK", "LevenbergMarquardtFD",
+           "GroupedDifferences", "BoxedDampedStep", "NielsenDamping", "StepTermination", "widen"]
 
 #: Column block of the channel-split Gram reductions; channel-split residuals padded to a
 #: multiple of it take the blocked path (:func:`_gram`).
@@ -395,26 +397,374 @@ class LMResult(NamedTuple):
     r: object
 
 
-def lm_fd(fn, z0, args, seeds, owner, max_steps=100, rtol=1e-8, atol=1e-10, central=None, max_reject=12,
-          tau=1e-3, max_step=3.0, wide=False, extrapolate=False):
-    """Minimize ``0.5 |fn(z, args)|^2`` from ``z0`` (see the module docstring).
+class GroupedDifferences(eqx.Module):
+    """The Jacobian part of :class:`LevenbergMarquardtFD`: grouped forward (or central)
+    differences, reduced straight to the normal equations (:func:`normal_equations`).
 
     Parameters
     ----------
-    fn : callable ``(z, args) -> (N, C)`` residuals, or a tuple of ``C`` arrays ``(n,)``
+    central : bool, optional
+        Central differences (``eps^(1/3)`` steps); default: in float32 only.
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit.fitting.lm import GroupedDifferences
+    >>> GroupedDifferences().is_central(jnp.float32), GroupedDifferences().evaluations(2, jnp.float64)
+    (True, 2)
+    """
+
+    central: Optional[bool] = eqx.field(default=None, static=True)
+
+    def is_central(self, dtype) -> bool:
+        """Whether differences are central for parameters of ``dtype``.
+
+        Parameters
+        ----------
+        dtype : dtype
+            The parameters' floating type.
+
+        Returns
+        -------
+        bool
+
+        Examples
+        --------
+        >>> import jax.numpy as jnp
+        >>> from matfit.fitting.lm import GroupedDifferences
+        >>> GroupedDifferences(central=True).is_central(jnp.float64)
+        True
+        """
+        return (jnp.dtype(dtype) == jnp.float32) if self.central is None else bool(self.central)
+
+    def evaluations(self, n_groups, dtype) -> int:
+        """Model evaluations per Jacobian beyond the residuals at the point.
+
+        Parameters
+        ----------
+        n_groups : int
+            Column groups (:func:`column_groups`).
+        dtype : dtype
+            The parameters' floating type.
+
+        Returns
+        -------
+        int
+
+        Examples
+        --------
+        >>> import jax.numpy as jnp
+        >>> from matfit.fitting.lm import GroupedDifferences
+        >>> GroupedDifferences().evaluations(3, jnp.float32)
+        6
+        """
+        return 2 * n_groups if self.is_central(dtype) else n_groups
+
+    def __call__(self, fn, z, args, seeds, owner, r=None, F=None, wide=False):
+        return normal_equations(fn, z, args, seeds, owner, self.is_central(z.dtype), r=r, F=F, wide=wide)
+
+
+class BoxedDampedStep(eqx.Module):
+    """The descent of :class:`LevenbergMarquardtFD`: the damped Gauss-Newton step
+    ``(J^T J + mu D) delta = -J^T r`` with no coordinate beyond ``max_step`` (:func:`_box_step`).
+
+    Parameters
+    ----------
+    max_step : float, default 3.0
+        Largest change of any coordinate of ``z`` in one step (``np.inf``: no limit).
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit.fitting.lm import BoxedDampedStep
+    >>> d = BoxedDampedStep(1.0)(jnp.eye(2), jnp.asarray(0.0), jnp.ones(2), jnp.array([-5.0, 0.5]))
+    >>> [round(float(x), 6) for x in d]
+    [1.0, -0.5]
+    """
+
+    max_step: float = eqx.field(default=3.0, static=True)
+
+    def __call__(self, A, mu, D, g):
+        eye = jnp.eye(A.shape[-1], dtype=A.dtype)
+        return _box_step(A + mu * D * eye, g, self.max_step)
+
+
+class NielsenDamping(eqx.Module):
+    """The damping schedule of :class:`LevenbergMarquardtFD` (Nielsen 1999): after an accepted
+    step of gain ratio ``rho``, ``mu <- mu max(1/3, 1 - (2 rho - 1)^3)`` and ``nu <- 2``; after a
+    rejected one ``mu <- mu nu``, ``nu <- 2 nu``.
+
+    Parameters
+    ----------
+    tau : float, default 1e-3
+        Initial damping, relative to the diagonal of ``J^T J`` (Marquardt's scaling).
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit.fitting.lm import NielsenDamping
+    >>> mu, nu = NielsenDamping().update(jnp.asarray(1.0), jnp.asarray(2.0), jnp.asarray(False), jnp.asarray(0.0))
+    >>> float(mu), float(nu)
+    (2.0, 4.0)
+    """
+
+    tau: float = eqx.field(default=1e-3, static=True)
+
+    def init(self, dtype):
+        """``(mu, nu)`` before the first step.
+
+        Parameters
+        ----------
+        dtype : dtype
+            The parameters' floating type.
+
+        Returns
+        -------
+        tuple of jax.Array
+
+        Examples
+        --------
+        >>> import jax.numpy as jnp
+        >>> from matfit.fitting.lm import NielsenDamping
+        >>> [float(x) for x in NielsenDamping(0.01).init(jnp.float32)]
+        [0.009999999776482582, 2.0]
+        """
+        return jnp.asarray(self.tau, dtype), jnp.asarray(2.0, dtype)
+
+    def update(self, mu, nu, accepted, rho):
+        """The damping after a trial step.
+
+        Parameters
+        ----------
+        mu, nu : jax.Array
+            The damping and its growth factor before the step.
+        accepted : jax.Array of bool
+            Whether the step was accepted.
+        rho : jax.Array
+            Its gain ratio.
+
+        Returns
+        -------
+        tuple of jax.Array
+            ``(mu, nu)``.
+
+        Examples
+        --------
+        >>> import jax.numpy as jnp
+        >>> from matfit.fitting.lm import NielsenDamping
+        >>> mu, nu = NielsenDamping().update(jnp.asarray(1.0), jnp.asarray(2.0), jnp.asarray(True), jnp.asarray(1.0))
+        >>> round(float(mu), 6), float(nu)
+        (0.333333, 2.0)
+        """
+        mu = jnp.where(accepted, mu * jnp.maximum(1 / 3, 1 - (2 * rho - 1) ** 3), mu * nu)
+        return mu, jnp.where(accepted, 2.0, 2 * nu)
+
+
+class StepTermination(eqx.Module):
+    """The stopping tests of :class:`LevenbergMarquardtFD` (module docstring, "Stopping").
+
+    Parameters
+    ----------
+    rtol, atol : float
+        Relative and absolute tolerances.
+    max_reject : int, default 12
+        Consecutive rejected steps after which the objective counts as minimal.
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit.fitting.lm import StepTermination
+    >>> bool(StepTermination(1e-8, 1e-10).at_start(jnp.zeros(3)))
+    True
+    """
+
+    rtol: float = eqx.field(static=True)
+    atol: float = eqx.field(static=True)
+    max_reject: int = eqx.field(default=12, static=True)
+
+    def at_start(self, g):
+        """True when the gradient ``g`` at the start is already at most ``atol``.
+
+        Parameters
+        ----------
+        g : jax.Array
+            ``J^T r`` at the start.
+
+        Returns
+        -------
+        jax.Array of bool
+
+        Examples
+        --------
+        >>> import jax.numpy as jnp
+        >>> from matfit.fitting.lm import StepTermination
+        >>> bool(StepTermination(1e-8, 1e-10).at_start(jnp.ones(2)))
+        False
+        """
+        return jnp.max(jnp.abs(g)) <= self.atol
+
+    def __call__(self, s, delta, F_new, F_c, pred, rho, accepted, g, rejects):
+        f_tol = max(self.rtol, 4 * float(jnp.finfo(s.z.dtype).eps))
+        # Either test ends the loop after a step the quadratic model predicted well (scipy's
+        # ftol/xtol rule); the objective's test cannot ask for less than the dtype resolves.
+        small_f = (s.F - F_c) <= f_tol * s.F + self.atol
+        small_z = jnp.linalg.norm(delta) <= self.rtol * (self.rtol + jnp.linalg.norm(s.z))
+        small_g = jnp.max(jnp.abs(g)) <= self.atol
+        # MINPACK's ftol test (More 1978) on the first trial step from a point, accepted or not:
+        # the actual and the predicted change both within the tolerance, so the quadratic model
+        # has nothing left to gain (in float32 the rejected steps of a converged fit would
+        # otherwise run up to max_reject). Not after rejections: a damping raised by them shrinks
+        # the predicted change of any point.
+        flat_f = (s.rejects == 0) & (jnp.abs(s.F - F_new) <= f_tol * s.F + self.atol) & (pred <= f_tol * s.F + self.atol)
+        return (accepted & (((small_f | small_z) & (rho > 0.25)) | small_g)) | flat_f | (rejects >= self.max_reject)
+
+
+class LevenbergMarquardtFD(eqx.Module):
+    """Levenberg-Marquardt on streamed normal equations, composed of its parts: a Jacobian
+    (:class:`GroupedDifferences`), a descent (:class:`BoxedDampedStep`), a damping schedule
+    (:class:`NielsenDamping`) and a termination (:class:`StepTermination`); optionally the line
+    extrapolation after steps that beat the model (:func:`_extrapolated`).
+
+    Parameters
+    ----------
+    jacobian : GroupedDifferences
+    descent : BoxedDampedStep
+    damping : NielsenDamping
+    termination : StepTermination
+    extrapolate : bool, default False
+        After an accepted step that beat its predicted decrease by more than 25 %, try the line
+        minimum along it (one more evaluation there). For single large fits; under ``vmap``
+        every member would pay the evaluation.
+
+    Examples
+    --------
+    >>> import numpy as np, jax.numpy as jnp
+    >>> from matfit.fitting.lm import (BoxedDampedStep, GroupedDifferences, LevenbergMarquardtFD, NielsenDamping,
+    ...                                StepTermination)
+    >>> solver = LevenbergMarquardtFD(GroupedDifferences(), BoxedDampedStep(), NielsenDamping(), StepTermination(1e-8, 1e-10))
+    >>> x = jnp.linspace(0.0, 1.0, 20)
+    >>> res = solver.minimise(lambda z, x: (z[0] * x - 2 * x)[:, None], jnp.array([0.0]), x, np.eye(1), np.ones((1, 1)))
+    >>> round(float(res.z[0]), 6), bool(res.converged)
+    (2.0, True)
+    """
+
+    jacobian: GroupedDifferences
+    descent: BoxedDampedStep
+    damping: NielsenDamping
+    termination: StepTermination
+    extrapolate: bool = eqx.field(default=False, static=True)
+
+    def minimise(self, fn, z0, args, seeds, owner, max_steps=100, wide=False) -> LMResult:
+        """Minimize ``0.5 |fn(z, args)|^2`` from ``z0``.
+
+        Parameters
+        ----------
+        fn : callable
+            ``fn(z, args)``: residuals ``(N, C)``, or a tuple of ``C`` arrays ``(n,)``
+            (channel-split); traceable by JAX.
+        z0 : jax.Array (p,)
+            The start.
+        args : pytree
+            Passed through to ``fn``.
+        seeds, owner : numpy.ndarray
+            The column groups, from :func:`column_groups`.
+        max_steps : int, default 100
+            Maximum number of Jacobians (accepted steps).
+        wide : bool, default False
+            Sum the moments in float64 (when x64 is on) and return ``A`` so, for covariances.
+
+        Returns
+        -------
+        LMResult
+
+        Examples
+        --------
+        >>> import numpy as np, jax.numpy as jnp
+        >>> from matfit.fitting.lm import (BoxedDampedStep, GroupedDifferences, LevenbergMarquardtFD,
+        ...                                NielsenDamping, StepTermination)
+        >>> solver = LevenbergMarquardtFD(GroupedDifferences(), BoxedDampedStep(), NielsenDamping(),
+        ...                               StepTermination(1e-8, 1e-10))
+        >>> res = solver.minimise(lambda z, a: (z - a)[None, :], jnp.zeros(2), jnp.array([1.0, -1.0]),
+        ...                       np.eye(2), np.ones((2, 2)))
+        >>> np.round(np.asarray(res.z), 6).tolist()
+        [1.0, -1.0]
+        """
+        z0 = jnp.asarray(z0)
+        dt = z0.dtype
+        per_jac = self.jacobian.evaluations(len(seeds), dt)
+        F0, A0, g0, r0 = self.jacobian(fn, z0, args, seeds, owner, wide=wide)
+        mu0, nu0 = self.damping.init(dt)
+        s = _State(z0, F0, A0, g0, r0, mu0, nu0, jnp.asarray(0), jnp.asarray(1 + per_jac),
+                   jnp.asarray(False), jnp.asarray(False), jnp.asarray(0),
+                   jnp.maximum(jnp.diag(A0), jnp.finfo(dt).eps * jnp.max(jnp.diag(A0)) + jnp.finfo(dt).tiny))
+
+        # One flat loop: every iteration is one trial step and the Jacobian at the (possibly
+        # unchanged) point. Under vmap (batched fits) a nested loop of rejections would make every
+        # member wait for the slowest one's rejections at every step; the flat loop costs at most
+        # the largest number of iterations of any member.
+        def cond(s):
+            return (~s.done) & (s.steps < max_steps) & (s.evals < (4 * max_steps + 1) * (1 + per_jac))
+
+        def body(s):
+            delta = self.descent(s.A, s.mu, s.D, s.g).astype(dt)
+            r_new = fn(s.z + delta, args)
+            F_new = _half_sq(r_new)
+            pred = (-jnp.dot(s.g, delta) - 0.5 * jnp.dot(delta, s.A @ delta)).astype(dt)
+            rho = (s.F - F_new) / jnp.where(pred > 0, pred, jnp.inf)
+            acc = jnp.isfinite(F_new) & (F_new < s.F) & (rho > 0) & jnp.all(jnp.isfinite(delta))
+            mu, nu = self.damping.update(s.mu, s.nu, acc, rho)
+            z_new = jnp.where(acc, s.z + delta, s.z)
+            if self.extrapolate:
+                z_new, r_new, F_new = _extrapolated(fn, args, s, delta, z_new, r_new, F_new, acc & (rho > 1.25),
+                                                    self.descent.max_step)
+            # A rejected step leaves z, and so the Jacobian, unchanged (under vmap both branches run).
+            F_c, A, g, r = jax.lax.cond(
+                acc, lambda: self.jacobian(fn, z_new, args, seeds, owner, r=r_new, F=F_new, wide=wide),
+                lambda: (s.F, s.A, s.g, s.r))
+            rejects = jnp.where(acc, 0, s.rejects + 1)
+            stop = self.termination(s, delta, F_new, F_c, pred, rho, acc, g, rejects)
+            return _State(z_new, F_c, A, g, r, mu, nu, s.steps + acc.astype(s.steps.dtype),
+                          s.evals + 1 + acc * per_jac, stop, stop, rejects, jnp.maximum(s.D, jnp.diag(A)))
+
+        small_g0 = self.termination.at_start(g0)
+        s = s._replace(done=small_g0, ok=small_g0)
+        s = jax.lax.while_loop(cond, body, s)
+        return LMResult(s.z, s.F, s.steps, s.ok, s.A, s.evals, s.r)
+
+
+def lm_fd(fn, z0, args, seeds, owner, max_steps=100, rtol=1e-8, atol=1e-10, central=None, max_reject=12,
+          tau=1e-3, max_step=3.0, wide=False, extrapolate=False) -> LMResult:
+    """Minimize ``0.5 |fn(z, args)|^2`` from ``z0`` with :class:`LevenbergMarquardtFD` built from
+    these options (see the module docstring).
+
+    Parameters
+    ----------
+    fn : callable
+        ``fn(z, args)``: ``(N, C)`` residuals, or a tuple of ``C`` arrays ``(n,)``
         (channel-split); traceable by JAX.
-    z0 : (p,) starting point.  args : pytree passed through to ``fn``.
-    seeds, owner : from :func:`column_groups`.
-    max_steps : maximum number of Jacobians (accepted steps).
-    rtol, atol : stopping tolerances.  central : central differences (default: float32 only).
-    max_reject : consecutive rejected steps after which the objective counts as minimal.
-    tau : initial damping, relative to the diagonal of ``J^T J``.
-    max_step : largest change of any coordinate of ``z`` in one step (``np.inf``: no limit).
-    wide : sum the moments ``J^T J``, ``J^T r`` in float64 (when x64 is on) at every Jacobian, and
+    z0 : array_like (p,)
+        Starting point.
+    args : pytree
+        Passed through to ``fn``.
+    seeds, owner : numpy.ndarray
+        From :func:`column_groups`.
+    max_steps : int, default 100
+        Maximum number of Jacobians (accepted steps).
+    rtol, atol : float
+        Stopping tolerances (:class:`StepTermination`).
+    central : bool, optional
+        Central differences (default: float32 only).
+    max_reject : int, default 12
+        Consecutive rejected steps after which the objective counts as minimal.
+    tau : float, default 1e-3
+        Initial damping, relative to the diagonal of ``J^T J``.
+    max_step : float, default 3.0
+        Largest change of any coordinate of ``z`` in one step (``np.inf``: no limit).
+    wide : bool, default False
+        Sum the moments ``J^T J``, ``J^T r`` in float64 (when x64 is on) at every Jacobian, and
         return ``A`` so: a float32 fit's ``A`` then serves covariances as a float64 one does.
-    extrapolate : after an accepted step that beat its predicted decrease by more than 25 %, try
-        the line minimum along it (:func:`_extrapolated`; one more evaluation there). For single
-        large fits; under ``vmap`` every member would pay the evaluation.
+    extrapolate : bool, default False
+        Line extrapolation after steps that beat the model (:class:`LevenbergMarquardtFD`).
 
     Returns
     -------
@@ -431,60 +781,6 @@ def lm_fd(fn, z0, args, seeds, owner, max_steps=100, rtol=1e-8, atol=1e-10, cent
     >>> np.round(np.asarray(res.z), 6).tolist(), bool(res.converged)
     ([2.0, 1.5], True)
     """
-    z0 = jnp.asarray(z0)
-    dt = z0.dtype
-    central = (dt == jnp.float32) if central is None else bool(central)
-    G = len(seeds)
-    per_jac = 2 * G if central else G
-    F0, A0, g0, r0 = normal_equations(fn, z0, args, seeds, owner, central, wide=wide)
-    mu0 = jnp.asarray(tau, dt)  # relative to diag(J^T J) (Marquardt's scaling)
-    s = _State(z0, F0, A0, g0, r0, mu0, jnp.asarray(2.0, dt), jnp.asarray(0), jnp.asarray(1 + per_jac),
-               jnp.asarray(False), jnp.asarray(False), jnp.asarray(0),
-               jnp.maximum(jnp.diag(A0), jnp.finfo(dt).eps * jnp.max(jnp.diag(A0)) + jnp.finfo(dt).tiny))
-    p = z0.shape[0]
-    eye = jnp.eye(p, dtype=A0.dtype)
-    f_tol = max(rtol, 4 * float(jnp.finfo(dt).eps))
-
-    # One flat loop: every iteration is one trial step and the Jacobian at the (possibly
-    # unchanged) point. Under vmap (batched fits) a nested loop of rejections would make every
-    # member wait for the slowest one's rejections at every step; the flat loop costs at most
-    # the largest number of iterations of any member.
-    def cond(s):
-        return (~s.done) & (s.steps < max_steps) & (s.evals < (4 * max_steps + 1) * (1 + per_jac))
-
-    def body(s):
-        delta = _box_step(s.A + s.mu * s.D * eye, s.g, max_step).astype(dt)
-        r_new = fn(s.z + delta, args)
-        F_new = _half_sq(r_new)
-        pred = (-jnp.dot(s.g, delta) - 0.5 * jnp.dot(delta, s.A @ delta)).astype(dt)
-        rho = (s.F - F_new) / jnp.where(pred > 0, pred, jnp.inf)
-        acc = jnp.isfinite(F_new) & (F_new < s.F) & (rho > 0) & jnp.all(jnp.isfinite(delta))
-        mu = jnp.where(acc, s.mu * jnp.maximum(1 / 3, 1 - (2 * rho - 1) ** 3), s.mu * s.nu)
-        nu = jnp.where(acc, 2.0, 2 * s.nu)
-        z_new = jnp.where(acc, s.z + delta, s.z)
-        if extrapolate:
-            z_new, r_new, F_new = _extrapolated(fn, args, s, delta, z_new, r_new, F_new, acc & (rho > 1.25), max_step)
-        # A rejected step leaves z, and so the Jacobian, unchanged (under vmap both branches run).
-        F_c, A, g, r = jax.lax.cond(
-            acc, lambda: normal_equations(fn, z_new, args, seeds, owner, central, r=r_new, F=F_new, wide=wide),
-            lambda: (s.F, s.A, s.g, s.r))
-        # Either test ends the loop after a step the quadratic model predicted well (scipy's
-        # ftol/xtol rule); the objective's test cannot ask for less than the dtype resolves.
-        small_f = (s.F - F_c) <= f_tol * s.F + atol
-        small_z = jnp.linalg.norm(delta) <= rtol * (rtol + jnp.linalg.norm(s.z))
-        small_g = jnp.max(jnp.abs(g)) <= atol
-        rejects = jnp.where(acc, 0, s.rejects + 1)
-        # MINPACK's ftol test (More 1978) on the first trial step from a point, accepted or not:
-        # the actual and the predicted change both within the tolerance, so the quadratic model
-        # has nothing left to gain (in float32 the rejected steps of a converged fit would
-        # otherwise run up to max_reject). Not after rejections: a damping raised by them shrinks
-        # the predicted change of any point.
-        flat_f = (s.rejects == 0) & (jnp.abs(s.F - F_new) <= f_tol * s.F + atol) & (pred <= f_tol * s.F + atol)
-        stop = (acc & (((small_f | small_z) & (rho > 0.25)) | small_g)) | flat_f | (rejects >= max_reject)
-        return _State(z_new, F_c, A, g, r, mu, nu, s.steps + acc.astype(s.steps.dtype), s.evals + 1 + acc * per_jac,
-                      stop, stop, rejects, jnp.maximum(s.D, jnp.diag(A)))
-
-    small_g0 = jnp.max(jnp.abs(g0)) <= atol
-    s = s._replace(done=small_g0, ok=small_g0)
-    s = jax.lax.while_loop(cond, body, s)
-    return LMResult(s.z, s.F, s.steps, s.ok, s.A, s.evals, s.r)
+    solver = LevenbergMarquardtFD(GroupedDifferences(central), BoxedDampedStep(max_step), NielsenDamping(tau),
+                                  StepTermination(rtol, atol, max_reject), extrapolate)
+    return solver.minimise(fn, z0, args, seeds, owner, max_steps=max_steps, wide=wide)

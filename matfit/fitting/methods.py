@@ -10,12 +10,16 @@ streams ``J^T J`` and ``J^T r`` through the model's evaluations and never materi
 needs gigabytes). The others stay for comparison and for problems where an exact Jacobian or a
 quasi-Newton method is wanted.
 
-Every solver has the same signature,
-``solve(fn, z0, args, max_steps, rtol, atol, groups, wide, extrapolate) -> (z, steps, converged, res)``,
-where ``fn(z, args)`` are the residuals (flat for the optimistix and jaxopt solvers; ``(N, C)``
-or channel-split for ``lm_fd``), ``groups`` the column groups of
-:func:`~matfit.fitting.lm.column_groups` and ``res`` the :class:`~matfit.fitting.lm.LMResult`
-of ``lm_fd`` (None for the others).
+Every method builds a solver object (:class:`AbstractSolver`: an equinox module, abstract base
+and final subclasses) from the tolerances, ``Method.build(rtol, atol)``. A solver declares what
+it needs and gives (:attr:`~AbstractSolver.residuals`, :attr:`~AbstractSolver.normal_equations`,
+:attr:`~AbstractSolver.traces`) and solves with one signature,
+``solver.solve(fn, z0, args, max_steps, groups, wide, extrapolate) -> Solution``, where
+``fn(z, args)`` are the residuals (flat, or ``(N, C)`` / channel-split for ``lm_fd``) and
+``groups`` the column groups of :func:`~matfit.fitting.lm.column_groups`. ``lm_fd``'s solver is
+:class:`~matfit.fitting.lm.LevenbergMarquardtFD`, composed of a Jacobian, a descent, a damping
+schedule and a termination. What fits do with a solver depends on those declarations, never on
+the method's name.
 
 Examples
 --------
@@ -28,15 +32,294 @@ Examples
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Callable
+import abc
+from dataclasses import dataclass, field
+from typing import ClassVar, NamedTuple, Optional
 
+import equinox as eqx
+import jax
 import jax.numpy as jnp
 
 from ..errors import ParameterError
-from .lm import lm_fd
+from .lm import BoxedDampedStep, GroupedDifferences, LevenbergMarquardtFD, LMResult, NielsenDamping, StepTermination
 
-__all__ = ["Method", "METHODS", "DEFAULT_METHOD", "get_method"]
+__all__ = ["Method", "METHODS", "DEFAULT_METHOD", "get_method", "AbstractSolver", "Solution", "LMFDSolver",
+           "OptimistixLeastSquares", "OptimistixBFGS", "JaxoptLBFGS", "JaxoptLM"]
+
+
+class Solution(NamedTuple):
+    """What :meth:`AbstractSolver.solve` returns: the solution ``z``, the number of ``steps``,
+    whether a stopping test ended the loop (``converged``) and, for solvers that stream the
+    normal equations, their :class:`~matfit.fitting.lm.LMResult` (``lm``; None otherwise).
+
+    Attributes
+    ----------
+    z : jax.Array (p,)
+    steps : jax.Array
+    converged : jax.Array of bool
+    lm : LMResult or None
+
+    Examples
+    --------
+    >>> from matfit.fitting.methods import Solution
+    >>> Solution(z=[0.0], steps=3, converged=True).lm is None
+    True
+    """
+
+    z: object
+    steps: object
+    converged: object
+    lm: Optional[LMResult] = None
+
+
+def _objective(fn):
+    def obj(z, args):
+        r = fn(z, args)
+        return 0.5 * jnp.sum(r * r)
+
+    return obj
+
+
+class AbstractSolver(eqx.Module):
+    """A least-squares solver of the registry, built with its tolerances.
+
+    Subclasses are final and declare:
+
+    - :attr:`residuals`: ``"flat"`` (one vector) or ``"channels"`` (``(N, C)`` or one array per
+      colour channel, for a grouped Jacobian);
+    - :attr:`normal_equations`: the solver returns ``F = 0.5 |r|^2``, ``J^T J`` and the
+      residuals at its solution (:class:`~matfit.fitting.lm.LMResult`), so that fits need not
+      evaluate them again, and it is cheap enough to solve a large table's subsample first;
+    - :attr:`traces`: :meth:`trace` records the objective at every step.
+
+    Parameters
+    ----------
+    rtol, atol : float
+        Relative and absolute stopping tolerances.
+
+    Examples
+    --------
+    >>> from matfit.fitting.methods import METHODS
+    >>> s = METHODS["lm_fd"].build(1e-8, 1e-10)
+    >>> s.residuals, s.normal_equations, s.traces
+    ('channels', True, False)
+    """
+
+    rtol: float = eqx.field(static=True)
+    atol: float = eqx.field(static=True)
+    residuals: ClassVar[str] = "flat"
+    normal_equations: ClassVar[bool] = False
+    traces: ClassVar[bool] = False
+
+    @abc.abstractmethod
+    def solve(self, fn, z0, args, max_steps, groups=None, wide=False, extrapolate=False) -> Solution:
+        """Minimize ``0.5 |fn(z, args)|^2`` from ``z0``.
+
+        Parameters
+        ----------
+        fn : callable
+            ``fn(z, args)``: the residuals in the layout of :attr:`residuals`.
+        z0 : jax.Array (p,)
+            The start.
+        args : pytree
+            Passed through to ``fn``.
+        max_steps : int
+            Step limit.
+        groups : tuple, optional
+            ``(seeds, owner)`` of :func:`~matfit.fitting.lm.column_groups` (grouped Jacobians).
+        wide : bool, default False
+            Return ``J^T J`` summed in float64 when x64 is on (solvers with normal equations).
+        extrapolate : bool, default False
+            Line extrapolation after steps that beat the model (``lm_fd``).
+
+        Returns
+        -------
+        Solution
+
+        Examples
+        --------
+        >>> import jax.numpy as jnp
+        >>> from matfit.fitting.methods import METHODS
+        >>> sol = METHODS["lm"].build(1e-8, 1e-10).solve(lambda z, a: z - a, jnp.zeros(2), jnp.ones(2), 50)
+        >>> [round(float(v), 6) for v in sol.z]
+        [1.0, 1.0]
+        """
+
+    def trace(self, fn, z0, args, max_steps, record) -> jax.Array:
+        """Solve as :meth:`solve` does, calling ``record(step, objective)`` at every step (with the
+        objective at the last accepted iterate); returns the final objective.
+
+        Parameters
+        ----------
+        fn, z0, args, max_steps :
+            As for :meth:`solve` (flat residuals).
+        record : callable
+            ``record(step, objective)``, called from the compiled loop (``jax.debug.callback``).
+
+        Returns
+        -------
+        jax.Array
+            ``0.5 |r|^2`` at the solution.
+
+        Examples
+        --------
+        >>> import jax.numpy as jnp
+        >>> from matfit.fitting.methods import METHODS
+        >>> seen = []
+        >>> F = METHODS["gn"].build(1e-8, 1e-10).trace(lambda z, a: z - a, jnp.zeros(1), jnp.ones(1), 20,
+        ...                                            lambda n, v: seen.append(v))
+        >>> float(F) < 1e-12 and len(seen) > 0
+        True
+        """
+        raise ParameterError(f"{type(self).__name__} does not report its iterates")
+
+
+class LMFDSolver(AbstractSolver):
+    """``lm_fd``: :class:`~matfit.fitting.lm.LevenbergMarquardtFD` (grouped finite-difference
+    Jacobian, streamed normal equations, boxed damped steps, Nielsen damping).
+
+    Parameters
+    ----------
+    rtol, atol : float
+        Stopping tolerances.
+
+    Examples
+    --------
+    >>> import numpy as np, jax.numpy as jnp
+    >>> from matfit.fitting.methods import LMFDSolver
+    >>> sol = LMFDSolver(1e-8, 1e-10).solve(lambda z, a: (z - a)[None, :], jnp.zeros(2), jnp.ones(2), 50,
+    ...                                     (np.eye(2), np.ones((1, 2))))
+    >>> [round(float(v), 6) for v in sol.z], bool(sol.converged)
+    ([1.0, 1.0], True)
+    """
+
+    residuals: ClassVar[str] = "channels"
+    normal_equations: ClassVar[bool] = True
+
+    def solve(self, fn, z0, args, max_steps, groups=None, wide=False, extrapolate=False) -> Solution:
+        solver = LevenbergMarquardtFD(GroupedDifferences(), BoxedDampedStep(), NielsenDamping(),
+                                      StepTermination(self.rtol, self.atol), extrapolate)
+        res = solver.minimise(fn, z0, args, *groups, max_steps=max_steps, wide=wide)
+        return Solution(res.z, res.steps, res.converged, res)
+
+
+_OPTX_LS = {"lm": "LevenbergMarquardt", "gn": "GaussNewton", "dogleg": "Dogleg"}
+
+
+class OptimistixLeastSquares(AbstractSolver):
+    """An optimistix least-squares solver (forward-mode Jacobian, ``N x p`` in memory).
+
+    Parameters
+    ----------
+    rtol, atol : float
+        Stopping tolerances.
+    kind : {"lm", "gn", "dogleg"}
+        ``optimistix.LevenbergMarquardt``, ``GaussNewton`` or ``Dogleg``.
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit.fitting.methods import OptimistixLeastSquares
+    >>> sol = OptimistixLeastSquares(1e-8, 1e-10, "dogleg").solve(lambda z, a: z - a, jnp.zeros(1), jnp.ones(1), 50)
+    >>> round(float(sol.z[0]), 6)
+    1.0
+    """
+
+    kind: str = eqx.field(default="lm", static=True)
+    traces: ClassVar[bool] = True
+
+    def _solver(self, **kw):
+        import optimistix as optx
+
+        return getattr(optx, _OPTX_LS[self.kind])(rtol=self.rtol, atol=self.atol, **kw)
+
+    def solve(self, fn, z0, args, max_steps, groups=None, wide=False, extrapolate=False) -> Solution:
+        import optimistix as optx
+
+        sol = optx.least_squares(fn, self._solver(), z0, args=args, max_steps=max_steps, throw=False)
+        return Solution(sol.value, sol.stats["num_steps"], sol.result == optx.RESULTS.successful)
+
+    def trace(self, fn, z0, args, max_steps, record) -> jax.Array:
+        import optimistix as optx
+
+        def verbose(**kw):
+            # kw values are (label, traced value); step 0 has no accepted iterate yet.
+            jax.debug.callback(lambda n, v: record(int(n), float(v)), kw["num_steps"][1],
+                               kw["loss_last_accepted_step"][1])
+
+        sol = optx.least_squares(fn, self._solver(verbose=verbose), z0, args=args, max_steps=max_steps, throw=False)
+        r = fn(sol.value, args)
+        return 0.5 * jnp.sum(r * r)
+
+
+class OptimistixBFGS(AbstractSolver):
+    """optimistix BFGS on ``0.5 |r|^2``.
+
+    Parameters
+    ----------
+    rtol, atol : float
+        Stopping tolerances.
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit.fitting.methods import OptimistixBFGS
+    >>> round(float(OptimistixBFGS(1e-8, 1e-10).solve(lambda z, a: z - a, jnp.zeros(1), jnp.ones(1), 50).z[0]), 5)
+    1.0
+    """
+
+    def solve(self, fn, z0, args, max_steps, groups=None, wide=False, extrapolate=False) -> Solution:
+        import optimistix as optx
+
+        sol = optx.minimise(_objective(fn), optx.BFGS(rtol=self.rtol, atol=self.atol), z0, args=args,
+                            max_steps=max_steps, throw=False)
+        return Solution(sol.value, sol.stats["num_steps"], sol.result == optx.RESULTS.successful)
+
+
+class JaxoptLBFGS(AbstractSolver):
+    """jaxopt L-BFGS on ``0.5 |r|^2`` (its ``tol`` is ``atol``).
+
+    Parameters
+    ----------
+    rtol, atol : float
+        Stopping tolerances.
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit.fitting.methods import JaxoptLBFGS
+    >>> round(float(JaxoptLBFGS(1e-8, 1e-10).solve(lambda z, a: z - a, jnp.zeros(1), jnp.ones(1), 50).z[0]), 5)
+    1.0
+    """
+
+    def solve(self, fn, z0, args, max_steps, groups=None, wide=False, extrapolate=False) -> Solution:
+        import jaxopt
+
+        res = jaxopt.LBFGS(fun=_objective(fn), maxiter=max_steps, tol=self.atol).run(z0, args)
+        return Solution(res.params, res.state.iter_num, res.state.error <= self.atol)
+
+
+class JaxoptLM(AbstractSolver):
+    """jaxopt Levenberg-Marquardt (its ``xtol`` is ``rtol``, ``gtol`` is ``atol``).
+
+    Parameters
+    ----------
+    rtol, atol : float
+        Stopping tolerances.
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit.fitting.methods import JaxoptLM
+    >>> round(float(JaxoptLM(1e-8, 1e-10).solve(lambda z, a: z - a, jnp.zeros(1), jnp.ones(1), 50).z[0]), 5)
+    1.0
+    """
+
+    def solve(self, fn, z0, args, max_steps, groups=None, wide=False, extrapolate=False) -> Solution:
+        import jaxopt
+
+        res = jaxopt.LevenbergMarquardt(residual_fun=fn, maxiter=max_steps, xtol=self.rtol, gtol=self.atol).run(z0, args)
+        return Solution(res.params, res.state.iter_num, res.state.error <= self.atol)
 
 
 @dataclass(frozen=True)
@@ -51,11 +334,10 @@ class Method:
         Where the solver comes from: ``"matfit"``, ``"optimistix"`` or ``"jaxopt"``.
     description : str
         One line for the CLI's help and the docs.
-    solve : callable
-        The solver (signature in the module docstring).
-    residuals : {"flat", "channels"}
-        The residual layout the solver takes: one flat vector, or ``(N, C)`` / channel-split
-        arrays (``lm_fd``, whose grouped Jacobian needs the channels apart).
+    solver : type
+        The :class:`AbstractSolver` subclass.
+    options : dict
+        Keyword arguments of the solver beyond the tolerances.
     batched : bool
         Usable by :func:`~matfit.fitting.fit_batch` (under ``vmap``).
     families, losses : tuple of str or None
@@ -64,81 +346,79 @@ class Method:
     Examples
     --------
     >>> from matfit.fitting.methods import get_method
-    >>> get_method("lm").serves("plastic", "e2")
-    True
+    >>> get_method("lm").serves("plastic", "e2"), get_method("lm_fd").residuals
+    (True, 'channels')
     """
 
     name: str
     backend: str
     description: str
-    solve: Callable
-    residuals: str = "flat"
+    solver: type
+    options: dict = field(default_factory=dict)
     batched: bool = True
-    families: tuple | None = None
-    losses: tuple | None = None
+    families: Optional[tuple] = None
+    losses: Optional[tuple] = None
+
+    @property
+    def residuals(self) -> str:
+        """The residual layout the solver takes (:attr:`AbstractSolver.residuals`)."""
+        return self.solver.residuals
+
+    def build(self, rtol, atol) -> AbstractSolver:
+        """The solver with tolerances ``rtol``, ``atol``.
+
+        Parameters
+        ----------
+        rtol, atol : float
+            Stopping tolerances.
+
+        Returns
+        -------
+        AbstractSolver
+
+        Examples
+        --------
+        >>> from matfit.fitting.methods import get_method
+        >>> type(get_method("dogleg").build(1e-6, 1e-9)).__name__
+        'OptimistixLeastSquares'
+        """
+        return self.solver(float(rtol), float(atol), **self.options)
 
     def serves(self, family: str, loss: str) -> bool:
-        """True when the method fits ``family`` under ``loss``."""
+        """True when the method fits ``family`` under ``loss``.
+
+        Parameters
+        ----------
+        family : str
+            A family name.
+        loss : str
+            A loss name.
+
+        Returns
+        -------
+        bool
+
+        Examples
+        --------
+        >>> from matfit.fitting.methods import get_method
+        >>> get_method("lm_fd").serves("conductor", "l2")
+        True
+        """
         return (self.families is None or family in self.families) and (self.losses is None or loss in self.losses)
-
-
-def _objective(fn):
-    def obj(z, args):
-        r = fn(z, args)
-        return 0.5 * jnp.sum(r * r)
-
-    return obj
-
-
-def _lm_fd(fn, z0, args, max_steps, rtol, atol, groups, wide, extrapolate):
-    res = lm_fd(fn, z0, args, *groups, max_steps=max_steps, rtol=rtol, atol=atol, wide=wide, extrapolate=extrapolate)
-    return res.z, res.steps, res.converged, res
-
-
-def _optimistix_ls(kind):
-    def solve(fn, z0, args, max_steps, rtol, atol, groups, wide, extrapolate):
-        import optimistix as optx
-
-        solver = {"lm": optx.LevenbergMarquardt, "gn": optx.GaussNewton, "dogleg": optx.Dogleg}[kind](rtol=rtol, atol=atol)
-        sol = optx.least_squares(fn, solver, z0, args=args, max_steps=max_steps, throw=False)
-        return sol.value, sol.stats["num_steps"], sol.result == optx.RESULTS.successful, None
-
-    return solve
-
-
-def _bfgs(fn, z0, args, max_steps, rtol, atol, groups, wide, extrapolate):
-    import optimistix as optx
-
-    sol = optx.minimise(_objective(fn), optx.BFGS(rtol=rtol, atol=atol), z0, args=args, max_steps=max_steps, throw=False)
-    return sol.value, sol.stats["num_steps"], sol.result == optx.RESULTS.successful, None
-
-
-def _lbfgs(fn, z0, args, max_steps, rtol, atol, groups, wide, extrapolate):
-    import jaxopt
-
-    res = jaxopt.LBFGS(fun=_objective(fn), maxiter=max_steps, tol=atol).run(z0, args)
-    return res.params, res.state.iter_num, res.state.error <= atol, None
-
-
-def _jaxopt_lm(fn, z0, args, max_steps, rtol, atol, groups, wide, extrapolate):
-    import jaxopt
-
-    res = jaxopt.LevenbergMarquardt(residual_fun=fn, maxiter=max_steps, xtol=rtol, gtol=atol).run(z0, args)
-    return res.params, res.state.iter_num, res.state.error <= atol, None
 
 
 #: The methods, the default first.
 METHODS = {
     m.name: m for m in (
         Method("lm_fd", "matfit", "Levenberg-Marquardt, grouped finite-difference Jacobian, streamed normal "
-               "equations (default; bounded memory on any table)", _lm_fd, residuals="channels"),
+               "equations (default; bounded memory on any table)", LMFDSolver),
         Method("lm", "optimistix", "optimistix Levenberg-Marquardt (forward-mode Jacobian, N x p in memory)",
-               _optimistix_ls("lm")),
-        Method("gn", "optimistix", "optimistix Gauss-Newton", _optimistix_ls("gn")),
-        Method("dogleg", "optimistix", "optimistix Dogleg trust region", _optimistix_ls("dogleg")),
-        Method("bfgs", "optimistix", "optimistix BFGS on 0.5 |r|^2", _bfgs),
-        Method("lbfgs", "jaxopt", "jaxopt L-BFGS on 0.5 |r|^2", _lbfgs),
-        Method("jaxopt_lm", "jaxopt", "jaxopt Levenberg-Marquardt", _jaxopt_lm),
+               OptimistixLeastSquares, {"kind": "lm"}),
+        Method("gn", "optimistix", "optimistix Gauss-Newton", OptimistixLeastSquares, {"kind": "gn"}),
+        Method("dogleg", "optimistix", "optimistix Dogleg trust region", OptimistixLeastSquares, {"kind": "dogleg"}),
+        Method("bfgs", "optimistix", "optimistix BFGS on 0.5 |r|^2", OptimistixBFGS),
+        Method("lbfgs", "jaxopt", "jaxopt L-BFGS on 0.5 |r|^2", JaxoptLBFGS),
+        Method("jaxopt_lm", "jaxopt", "jaxopt Levenberg-Marquardt", JaxoptLM),
     )
 }
 
@@ -147,8 +427,25 @@ DEFAULT_METHOD = "lm_fd"
 
 
 def get_method(name, where="fit", family=None, loss=None) -> Method:
-    """The registered :class:`Method` called ``name``; a :class:`~matfit.ParameterError` naming
-    the choices when there is none, or when it does not serve ``family`` / ``loss``.
+    """The registered :class:`Method` called ``name``.
+
+    Parameters
+    ----------
+    name : str
+        A key of :data:`METHODS`.
+    where : str, default "fit"
+        The caller, named in errors.
+    family, loss : str, optional
+        When both are given, the method must serve them.
+
+    Returns
+    -------
+    Method
+
+    Raises
+    ------
+    matfit.ParameterError
+        Naming the choices, when there is no such method or it does not serve ``family`` / ``loss``.
 
     Examples
     --------

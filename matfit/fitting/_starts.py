@@ -1,0 +1,218 @@
+"""Where fits start: the data-driven guess (diffuse floor, peak height and width, and what the
+family itself knows), the screened extra starts, and the jitted helpers that map starts to and
+from the unconstrained space."""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..parallel import shard_batch
+from ..table import Table
+from .params import Parametrization
+from ._result import FitError
+from ._solver import batched_run
+
+__all__ = ["initial_guess", "initial_guesses", "guesses_from_arrays", "percentile10", "SCREEN_PER_START", "candidates",
+           "fit_starts", "screened_starts", "compiled_helpers"]
+
+
+def initial_guess(table: Table, par: Parametrization):
+    """Data-driven starting values: diffuse floor, specular peak height and width.
+
+    The floor is the 10th percentile of the valid values (times pi: a Lambertian albedo); the
+    peak is the row of largest ``f cos(theta_i)``; the width is the largest half-vector angle
+    among rows above half the peak's excess over the floor, turned into a GGX alpha through
+    ``D(theta_h)/D(0) = 1/2  <=>  tan(theta_h) = alpha * sqrt(sqrt(2) - 1)``. For the rough
+    conductor families the width is then refined from the lobe's shape and ``eta``, ``k`` per
+    channel come from the Fresnel curve read off the table
+    (:func:`matfit.fitting._conductor_guess.conductor_guess`).
+
+    Returns
+    -------
+    dict
+        Parameter name -> value (scalar or per channel), every one strictly inside its bounds.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit import Table
+    >>> from matfit.fitting import Parametrization, initial_guess
+    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]]); wi = wo[::-1].copy()
+    >>> g = initial_guess(Table(wo=wo, wi=wi, values=np.full((2, 3), 0.2)), Parametrization("lambert", 3))
+    >>> np.round(g["albedo"], 3).tolist()
+    [0.628, 0.628, 0.628]
+    """
+    return {k: v[0] for k, v in initial_guesses([table], par).items()}
+
+
+def percentile10(v, valid):
+    """``np.percentile(v[b][valid[b]], 10, axis=0)`` for every b at once (linear interpolation)."""
+    if v.shape[0] == 1:  # one (large) table: numpy's partition, not a sort of every row
+        return np.percentile(v[0] if valid[0].all() else v[0][valid[0]], 10, axis=0)[None]
+    n = valid.sum(axis=1)  # (B,)
+    srt = np.sort(np.where(valid[..., None], v, np.inf), axis=1)  # invalid rows last
+    pos = 0.1 * (n - 1)
+    lo = np.floor(pos).astype(int)
+    hi = np.minimum(lo + 1, n - 1)
+    a = np.take_along_axis(srt, lo[:, None, None], axis=1)[:, 0]
+    b = np.take_along_axis(srt, hi[:, None, None], axis=1)[:, 0]
+    return a + (pos - lo)[:, None] * (b - a)
+
+
+def initial_guesses(tables, par: Parametrization):
+    """:func:`initial_guess` for many tables of one shape at once (vectorized over the tables;
+    a texel map's guesses are a few array operations, not a loop over the texels).
+
+    Returns
+    -------
+    dict
+        Parameter name -> array with a leading table axis ``(B,)`` or ``(B, C)``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit import Table
+    >>> from matfit.fitting import Parametrization, initial_guesses
+    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]]); wi = wo[::-1].copy()
+    >>> tables = [Table(wo=wo, wi=wi, values=np.full((2, 3), a)) for a in (0.1, 0.2)]
+    >>> initial_guesses(tables, Parametrization("lambert", 3))["albedo"].shape
+    (2, 3)
+    """
+    stack = (lambda xs: np.asarray(xs[0])[None]) if len(tables) == 1 else np.stack  # one table: no copy
+    V = stack([np.asarray(t.values, float) for t in tables])
+    M = stack([np.asarray(t.valid, bool) for t in tables])
+    WO = stack([np.asarray(t.wo, float) for t in tables])
+    WI = stack([np.asarray(t.wi, float) for t in tables])
+    return guesses_from_arrays(WO, WI, V, M, par, one=len(tables) == 1)
+
+
+def guesses_from_arrays(WO, WI, V, M, par: Parametrization, one=False):
+    """:func:`initial_guesses` of a stack of tables given as arrays: directions ``WO``, ``WI``
+    ``(B, N, 3)`` (broadcast views are fine: directions shared by every table cost no copy),
+    values ``V`` ``(B, N, C)`` and the valid rows ``M`` ``(B, N)``. ``one``: the stack is a single
+    table (its error messages say "the table").
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit.fitting import Parametrization, guesses_from_arrays
+    >>> wo = np.broadcast_to([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]], (4, 2, 3)); wi = wo[:, ::-1]
+    >>> g = guesses_from_arrays(wo, wi, np.full((4, 2, 3), 0.1), np.ones((4, 2), bool), Parametrization("lambert", 3))
+    >>> g["albedo"].shape
+    (4, 3)
+    """
+    V = np.asarray(V, float)
+    empty = np.flatnonzero(~M.any(axis=1))
+    if empty.size:
+        raise FitError("the table has no valid rows" if one else f"tables {empty[:10].tolist()} have no valid rows")
+    B = V.shape[0]
+    rows = np.arange(B)
+    floor = percentile10(V, M)  # (B, C)
+    mean = np.einsum("bnc->bn", V) / V.shape[2]  # (einsum: numpy's mean over a short last axis is slower)
+    s = WO + WI
+    hz = s[..., 2] / np.maximum(np.sqrt(np.einsum("bni,bni->bn", s, s)), 1e-12)  # the half vector's cosine
+    excess = np.where(M, mean - np.where(M, mean, np.inf).min(axis=1, keepdims=True), -np.inf)
+    emax = excess.max(axis=1, keepdims=True)
+    top = M & np.where(emax > 0, excess >= 0.5 * emax, True)
+    # the largest theta_h among the top rows: arccos of their smallest cosine
+    th = np.arccos(np.clip(np.where(top, hz, np.inf).min(axis=1), -1, 1))
+    alpha = np.clip(np.tan(np.minimum(th, 1.3)) / np.sqrt(np.sqrt(2) - 1), 0.02, 0.8)
+    ipk = np.argmax(np.where(M, mean * np.abs(WI[..., 2]), -np.inf), axis=1)
+    peak = V[rows, ipk] - floor
+    co = np.maximum(np.abs(WO[rows, ipk, 2]), 0.05)
+    # At the peak (theta_h ~ 0): f ~ F / (4 pi alpha^2 cos^2), so F ~ f 4 pi alpha^2 cos^2.
+    r0 = np.clip(peak * (4 * np.pi * alpha**2 * co**2)[:, None], 0.02, 0.9)
+    k = 2 * np.sqrt(r0 / (1 - r0))
+    ones = np.ones_like(r0)
+    guess = {
+        "albedo": np.clip(np.pi * floor, 0.01, 0.95),
+        "alpha": alpha.copy(), "alpha_base": alpha, "alpha_coat": np.maximum(alpha / 2, 0.02),
+        "eta": ones.copy(),
+        "k": k.copy(), "eta_base": ones, "k_base": k, "eta_coat": np.full(B, 1.5), "f0": r0,
+    }
+    # what the family itself knows: constant starts, then its data-driven refinement
+    for p in par.family.params:
+        if p.name in par.family.starts:
+            guess[p.name] = np.full((B, V.shape[2]) if p.per_channel else B, float(par.family.starts[p.name]))
+    if par.family.refine is not None:
+        par.family.refine(WO, WI, V, M, guess, par.family)
+    # Every guess strictly inside its bounds (the bijection saturates at a bound).
+    out = {}
+    for p in par.free:
+        lo, hi = p.lower, p.upper
+        span = (hi - lo) if np.isfinite(hi) else 1.0
+        # a parameter without a data-driven guess (a user-defined family's) starts mid-range
+        g = guess.get(p.name)
+        if g is None:
+            mid = 0.5 * (lo + hi) if np.isfinite(hi) else lo + 1.0
+            g = np.full((B, V.shape[2]) if p.per_channel else B, mid)
+        out[p.name] = np.clip(g, lo + 1e-3 * span, hi - 1e-3 * span if np.isfinite(hi) else np.inf)
+    return out
+
+
+#: Candidates screened per extra start (see :func:`screened_starts`).
+SCREEN_PER_START = 8
+
+
+def candidates(par, base, n_extra, seed):
+    """``SCREEN_PER_START * n_extra`` candidate starts per table, (B, K, p): half the data-driven
+    start plus N(0, 1) steps in the unconstrained space, half spread over the whole parameter box
+    (bounded parameters uniform in (2 %, 98 %) of their range, others N(0, 1) in z)."""
+    K = SCREEN_PER_START * n_extra
+    rng = np.random.default_rng(seed)
+    local = rng.normal(0, 1.0, (K - K // 2, par.size))
+    u = rng.uniform(0.02, 0.98, (K // 2, par.size))
+    bounded = np.isfinite(par.lower_upper()[1])
+    spread = np.where(bounded, np.log(u) - np.log1p(-u), rng.normal(0, 1.0, u.shape))
+    base = np.asarray(base)
+    return np.concatenate([base[:, None, :] + local.astype(base.dtype)[None],
+                           np.broadcast_to(spread.astype(base.dtype), (base.shape[0],) + spread.shape)], axis=1)
+
+
+def fit_starts(table, par, n, seed, objective, arrays, init=None):
+    """The ``n`` starts (n, p) that :func:`fit` runs: the data-driven guess (with ``init``'s values
+    replacing its entries), then the best screened candidates (:func:`screened_starts`).
+    ``objective(zs, arrays)`` is the fit's objective for a stack of ``z``."""
+    g = initial_guess(table, par)
+    if init is not None:
+        g.update(init)
+    base = np.asarray(compiled_helpers(par)["z_from_theta"](g)).astype(arrays[0].dtype)[None]
+    return screened_starts(objective, par, base, n, seed, arrays)[0]
+
+
+def screened_starts(objective, par, base, n, seed, arrays, batched=False):
+    """Starts per table, (B, n, p): the data-driven start ``base`` (B, p) first, then the ``n - 1``
+    candidates of :func:`candidates` with the lowest objective on the table (one vectorized
+    evaluation of the fit's own objective; multi-start without the cost of ``n`` full solves
+    from blind perturbations, which for layered and metal families mostly end at a bound)."""
+    base = np.asarray(base)
+    if n <= 1:
+        return jnp.asarray(base[:, None, :])
+    cand = candidates(par, base, n - 1, seed)  # numpy: no eager JAX operations to dispatch
+    if batched:
+        (c, a), nb = shard_batch((jnp.asarray(cand), arrays))
+        obj = np.asarray(batched_run(objective)(c, a)[:nb])
+    else:
+        obj = np.asarray(objective(jnp.asarray(cand[0]), arrays))[None]
+    obj = np.where(np.isfinite(obj), obj, np.inf)
+    best = np.argsort(obj, axis=1, kind="stable")[:, : n - 1]
+    return jnp.asarray(np.concatenate([base[:, None, :], np.take_along_axis(cand, best[:, :, None], axis=1)], axis=1))
+
+
+@functools.lru_cache(maxsize=64)
+def compiled_helpers(par):
+    """Jitted helpers of a (cached) :class:`Parametrization`: ``z_from_theta`` and ``post(zb, z,
+    zs)`` -> the natural values of ``zb``, the diagonal of their Jacobian in ``z``, the natural
+    values of the starts ``z`` and ``zs``, every parameter's value and the model at ``zb``. One
+    compiled call each, instead of dozens of small eagerly dispatched operations per fit."""
+
+    def post(zb, z, zs):
+        return {"values": par.theta_vector(zb), "dtheta": jnp.diag(jax.jacfwd(par.theta_vector)(zb)),
+                "starts": par.theta_vector(z), "sub_starts": par.theta_vector(zs),
+                "theta": par.full(par.theta(zb)), "model": par.model(zb)}
+
+    return {"z_from_theta": jax.jit(par.z_from_theta), "post": jax.jit(post)}
