@@ -12,31 +12,78 @@ __all__ = ["FitError", "FitResult", "BatchFit"]
 
 
 class FitError(MatfitError):
-    """A fit cannot be done as asked (degenerate table, all starts failed, ...)."""
+    """A fit cannot be done as asked (degenerate table, all starts failed, too little memory, ...).
+
+    Parameters
+    ----------
+    message : str
+        What went wrong, naming the table's property or the option at fault.
+
+    Examples
+    --------
+    >>> from matfit import Table
+    >>> from matfit.fitting import FitError, fit
+    >>> t = Table(wo=[[0.0, 0.0, 1.0]], wi=[[0.0, 0.0, 1.0]], values=[[0.1, 0.1, 0.1]])
+    >>> try:
+    ...     fit(t, model="conductor")
+    ... except FitError as e:
+    ...     print(str(e)[:36])
+    fit: the table has 3 usable residual
+    """
 
 
 @dataclass
 class FitResult:
-    """The outcome of :func:`fit`.
+    """The outcome of :func:`~matfit.fitting.fit`.
 
     Attributes
     ----------
     family, method, loss : str
-    params : dict of numpy arrays, every parameter (free and fixed), per-channel ones (C,)
-    labels : names of the free parameters, in the order of ``values``, ``stderr``, ``cov``
-    values, stderr : (p,) free parameter values and standard errors (Gauss-Newton)
-    cov, corr : (p, p) covariance and correlation of the free parameters
-    objective : 0.5 * sum of squared residuals at the optimum
-    rss, n_residuals, dof : residual sum of squares, number of residuals used, n - p
-    steps : solver iterations of the best start;  converged : whether it met its tolerances
-    wall_time : seconds for the whole call;  start_objectives : objective reached by each start
-    model : the fitted matfit model
-    warnings : diagnostics of the optimum (list of str; see :mod:`matfit.fitting.diagnostics`):
-        not converged, not identifiable (those standard errors are ``inf``), at a bound,
-        outliers, poor fit, multiple optima.  ``ok`` is ``converged and not warnings``.
-    info : notes on how the fit was computed (list of str), e.g. that a family has no
-        channel-split kernel and ``lm_fd`` solved it on ``(N, C)`` residuals, or that a large
-        table's starts were compared on its subset; not warnings.
+        What was fitted, by which method, under which loss.
+    params : dict of numpy.ndarray
+        Every parameter (free and fixed); per-channel ones have shape (C,).
+    labels : list of str
+        Names of the free parameters, in the order of ``values``, ``stderr``, ``cov``.
+    values, stderr : numpy.ndarray (p,)
+        Free parameter values and their Gauss-Newton standard errors.
+    cov, corr : numpy.ndarray (p, p)
+        Covariance and correlation of the free parameters.
+    objective : float
+        ``0.5 * sum`` of squared residuals at the optimum.
+    rss : float
+        Residual sum of squares.
+    n_residuals, dof : int
+        Number of residuals used, and ``n - p``.
+    steps : int
+        Solver iterations of the best start.
+    converged : bool
+        Whether the best start met its tolerances.
+    wall_time : float
+        Seconds for the whole call.
+    start_objectives : numpy.ndarray
+        Objective reached by each start.
+    model : AbstractBSDF
+        The fitted matfit model.
+    z : numpy.ndarray (p,)
+        The solution in the unconstrained space.
+    warnings : list of str
+        Diagnostics of the optimum (:mod:`matfit.fitting.diagnostics`): not converged, not
+        identifiable (those standard errors are ``inf``), at a bound, outliers, poor fit,
+        multiple optima. ``ok`` is ``converged and not warnings``.
+    info : list of str
+        Notes on how the fit was computed, e.g. that a family has no channel-split kernel and
+        ``lm_fd`` solved it on ``(N, C)`` residuals, or that a large table's starts were compared
+        on its subset; not warnings.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit import Table
+    >>> from matfit.fitting import fit
+    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
+    >>> r = fit(Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1)), model="lambert", starts=1)
+    >>> r.labels, round(float(r.values[0]), 4), r.converged
+    (['albedo[0]', 'albedo[1]', 'albedo[2]'], 0.3142, True)
     """
 
     family: str
@@ -67,6 +114,23 @@ class FitResult:
         return bool(self.converged) and not self.warnings
 
     def summary(self) -> str:
+        """A few lines: family, method, loss, objective, steps, convergence and wall time, then
+        every free parameter with its standard error, the warnings and the notes.
+
+        Returns
+        -------
+        str
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from matfit import Table
+        >>> from matfit.fitting import fit
+        >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
+        >>> r = fit(Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1)), model="lambert", starts=1)
+        >>> r.summary().splitlines()[0].startswith("lambert fit (lm_fd, l2): objective")
+        True
+        """
         lines = [f"{self.family} fit ({self.method}, {self.loss}): objective {self.objective:.6g}, "
                  f"{self.steps} steps, converged={self.converged}, {self.wall_time:.2f} s"]
         for lab, v, s in zip(self.labels, self.values, self.stderr):
@@ -78,12 +142,39 @@ class FitResult:
 
 @dataclass(frozen=True)
 class BatchFit:
-    """Per-table results of :func:`fit_arrays` (leading axis: the tables)."""
+    """Per-table results of :func:`~matfit.fitting.fit_arrays` (leading axis: the tables).
+
+    Attributes
+    ----------
+    labels : list of str
+        Names of the free parameters.
+    values : numpy.ndarray (B, p)
+        Natural parameter values, in the order of ``labels``.
+    stderr : numpy.ndarray (B, p)
+        Gauss-Newton standard errors (NaN when not computed).
+    objective : numpy.ndarray (B,)
+        ``0.5 * sum`` of squared residuals.
+    steps : numpy.ndarray (B,)
+        Solver iterations.
+    converged : numpy.ndarray (B,) of bool
+        Whether each table's solve met its tolerances.
+    n_residuals : numpy.ndarray (B,)
+        Residuals with a nonzero weight.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit.fitting import fit_arrays
+    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
+    >>> b = fit_arrays(wo, wi, np.full((2, 3, 3), 0.1), model="lambert")
+    >>> b.values.shape, b.n_residuals.tolist()
+    ((2, 3), [9, 9])
+    """
 
     labels: list
-    values: np.ndarray  # (B, p) natural parameter values, in the order of labels
-    stderr: np.ndarray  # (B, p) Gauss-Newton standard errors (NaN when not computed)
-    objective: np.ndarray  # (B,) 0.5 * sum of squared residuals
-    steps: np.ndarray  # (B,) solver iterations
-    converged: np.ndarray  # (B,) bool
-    n_residuals: np.ndarray  # (B,) residuals with a nonzero weight
+    values: np.ndarray
+    stderr: np.ndarray
+    objective: np.ndarray
+    steps: np.ndarray
+    converged: np.ndarray
+    n_residuals: np.ndarray

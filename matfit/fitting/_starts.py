@@ -29,7 +29,14 @@ def initial_guess(table: Table, par: Parametrization):
     ``D(theta_h)/D(0) = 1/2  <=>  tan(theta_h) = alpha * sqrt(sqrt(2) - 1)``. For the rough
     conductor families the width is then refined from the lobe's shape and ``eta``, ``k`` per
     channel come from the Fresnel curve read off the table
-    (:func:`matfit.fitting._conductor_guess.conductor_guess`).
+    (the family's ``refine`` hook, :class:`~matfit.fitting.Family`).
+
+    Parameters
+    ----------
+    table : matfit.Table
+        The table (at least one valid row).
+    par : Parametrization
+        The family, channels and fixed parameters.
 
     Returns
     -------
@@ -67,6 +74,13 @@ def initial_guesses(tables, par: Parametrization):
     """:func:`initial_guess` for many tables of one shape at once (vectorized over the tables;
     a texel map's guesses are a few array operations, not a loop over the texels).
 
+    Parameters
+    ----------
+    tables : sequence of matfit.Table
+        Tables of one shape (rows and channels).
+    par : Parametrization
+        The family, channels and fixed parameters.
+
     Returns
     -------
     dict
@@ -93,8 +107,30 @@ def initial_guesses(tables, par: Parametrization):
 def guesses_from_arrays(WO, WI, V, M, par: Parametrization, one=False):
     """:func:`initial_guesses` of a stack of tables given as arrays: directions ``WO``, ``WI``
     ``(B, N, 3)`` (broadcast views are fine: directions shared by every table cost no copy),
-    values ``V`` ``(B, N, C)`` and the valid rows ``M`` ``(B, N)``. ``one``: the stack is a single
-    table (its error messages say "the table").
+    values ``V`` ``(B, N, C)`` and the valid rows ``M`` ``(B, N)``.
+
+    Parameters
+    ----------
+    WO, WI : numpy.ndarray (B, N, 3)
+        Directions to the viewer and to the light.
+    V : numpy.ndarray (B, N, C)
+        Values.
+    M : numpy.ndarray of bool (B, N)
+        Rows that may seed the guess.
+    par : Parametrization
+        The family, channels and fixed parameters.
+    one : bool, default False
+        The stack is a single table (its error messages say "the table").
+
+    Returns
+    -------
+    dict
+        Parameter name -> array ``(B,)`` or ``(B, C)``, every value strictly inside its bounds.
+
+    Raises
+    ------
+    FitError
+        When a table has no valid row.
 
     Examples
     --------

@@ -167,10 +167,37 @@ def fit(table, model="plastic", method=DEFAULT_METHOD, loss="l2", robust=None, r
 
 def fit_batch(tables, model="plastic", method=DEFAULT_METHOD, loss="l2", fixed=None, tied=(), starts=1, max_steps=128,
               rtol=1e-8, atol=1e-10, dtype=None):
-    """Fit many tables of the same shape and directions in one vectorized call (e.g. texels).
+    """Fit many tables of the same shape in one vectorized call (e.g. texels).
 
-    Returns ``(values (B, p), objective (B,), labels)``; every table gets its own data-driven
-    start (``starts`` per table).
+    Every table gets its own data-driven start (``starts`` per table) and its own solve, in one
+    compiled program (:func:`fit_arrays`).
+
+    Parameters
+    ----------
+    tables : sequence of matfit.Table
+        Tables of one shape (rows and channels).
+    model, method, loss, fixed, tied, starts, max_steps, rtol, atol, dtype :
+        As for :func:`fit` (``method`` must be a batched one, :attr:`Method.batched`).
+
+    Returns
+    -------
+    values : numpy.ndarray (B, p)
+        Natural parameter values per table.
+    objective : numpy.ndarray (B,)
+        ``0.5 * sum`` of squared residuals per table.
+    labels : list of str
+        Names of the free parameters.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit import Table
+    >>> from matfit.fitting import fit_batch
+    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
+    >>> tables = [Table(wo=wo, wi=wi, values=np.full((3, 3), a / np.pi)) for a in (0.2, 0.4)]
+    >>> values, objective, labels = fit_batch(tables, model="lambert")
+    >>> [round(float(v), 4) for v in values[:, 0]], labels[0]
+    ([0.2, 0.4], 'albedo[0]')
     """
     if isinstance(tables, Table) or not hasattr(tables, "__len__"):
         raise ParameterError(f"fit_batch: tables must be a sequence of matfit.Table, got {type(tables).__name__}")

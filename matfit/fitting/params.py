@@ -345,7 +345,28 @@ FAMILIES: dict[str, Family] = {
 
 
 def get_family(name) -> Family:
-    """The family called ``name`` (see :data:`FAMILIES`)."""
+    """The family called ``name`` (see :data:`FAMILIES`).
+
+    Parameters
+    ----------
+    name : str
+        A key of :data:`FAMILIES`.
+
+    Returns
+    -------
+    Family
+
+    Raises
+    ------
+    matfit.ParameterError
+        Naming the families, when there is none of that name.
+
+    Examples
+    --------
+    >>> from matfit.fitting import get_family
+    >>> [p.name for p in get_family("plastic").params]
+    ['albedo', 'alpha', 'eta']
+    """
     if name not in FAMILIES:
         raise ParameterError(f"model must be one of {sorted(FAMILIES)}, got {name!r}")
     return FAMILIES[name]
@@ -428,9 +449,35 @@ class Parametrization:
         return next(p for p in self.family.params if p.name == name)
 
     def check_value(self, what, name, v):
-        """Validate a value given for parameter ``name`` (``what``: "fixed", "init", ...): real,
-        finite, inside the parameter's range, and a scalar or (per-channel parameters) ``C``
-        values. Returns it as a float array."""
+        """Validate a value given for parameter ``name``: real, finite, inside the parameter's
+        range, and a scalar or (per-channel parameters) ``C`` values.
+
+        Parameters
+        ----------
+        what : str
+            What the value is for ("fixed", "init", ...), named in errors.
+        name : str
+            The parameter.
+        v : number or array_like
+            The value.
+
+        Returns
+        -------
+        number or array_like
+            ``v`` unchanged.
+
+        Raises
+        ------
+        matfit.ParameterError
+            Naming the parameter, the value and what was expected.
+
+        Examples
+        --------
+        >>> from matfit.fitting import Parametrization
+        >>> par = Parametrization("plastic", 3, fixed={"eta": 1.5})
+        >>> par.check_value("init", "alpha", 0.3)
+        0.3
+        """
         p = self._param(name)
         where = f"{what} {name}={v!r}"
         try:
@@ -450,8 +497,27 @@ class Parametrization:
             raise ParameterError(f"{where}: expected {want}, found shape {a.shape}")
         return v
 
-    def check_theta(self, what, theta):
-        """Validate a dict of values for free parameters (e.g. ``fit(init=...)``)."""
+    def check_theta(self, what, theta) -> None:
+        """Validate a dict of values for free parameters (e.g. ``fit(init=...)``).
+
+        Parameters
+        ----------
+        what : str
+            What the values are for, named in errors.
+        theta : mapping
+            Free parameter name -> value.
+
+        Raises
+        ------
+        matfit.ParameterError
+            For a fixed or unknown parameter, or a bad value.
+
+        Examples
+        --------
+        >>> from matfit.fitting import Parametrization
+        >>> par = Parametrization("plastic", 3, fixed={"eta": 1.5})
+        >>> par.check_theta("init", {"alpha": 0.2})
+        """
         if not isinstance(theta, Mapping):
             raise ParameterError(f"{what} must be a dict of parameter values, got {type(theta).__name__}")
         free = [p.name for p in self.free]
@@ -472,6 +538,19 @@ class Parametrization:
         return out
 
     def lower_upper(self):
+        """The bounds of every free coordinate, in the order of :attr:`labels`.
+
+        Returns
+        -------
+        lower, upper : numpy.ndarray (size,)
+
+        Examples
+        --------
+        >>> from matfit.fitting import Parametrization
+        >>> par = Parametrization("plastic", 3, fixed={"eta": 1.5})
+        >>> [a.tolist() for a in par.lower_upper()]
+        [[0.0, 0.0, 0.0, 0.001], [1.0, 1.0, 1.0, 1.5]]
+        """
         lo, hi = [], []
         for p, n in zip(self.free, self.sizes):
             lo += [p.lower] * n
@@ -479,7 +558,26 @@ class Parametrization:
         return np.array(lo), np.array(hi)
 
     def split(self, vec):
-        """Cut a flat vector into per-parameter pieces (per-channel pieces keep their axis)."""
+        """Cut a flat vector into per-parameter pieces (per-channel pieces keep their axis).
+
+        Parameters
+        ----------
+        vec : array_like (..., size)
+            A vector in the layout of :attr:`labels`.
+
+        Returns
+        -------
+        dict
+            Free parameter name -> piece ``(..., C)`` or ``(...)``.
+
+        Examples
+        --------
+        >>> from matfit.fitting import Parametrization
+        >>> par = Parametrization("plastic", 3, fixed={"eta": 1.5})
+        >>> import numpy as np
+        >>> {k: v.tolist() for k, v in par.split(np.array([0.1, 0.2, 0.3, 0.4])).items()}
+        {'albedo': [0.1, 0.2, 0.3], 'alpha': 0.4}
+        """
         out, i = {}, 0
         for p, n in zip(self.free, self.sizes):
             v = vec[..., i:i + n]
@@ -488,7 +586,25 @@ class Parametrization:
         return out
 
     def theta(self, z):
-        """Natural parameter values (dict) for an unconstrained vector ``z`` (..., size)."""
+        """Natural parameter values for an unconstrained vector.
+
+        Parameters
+        ----------
+        z : array_like (..., size)
+            Unconstrained coordinates.
+
+        Returns
+        -------
+        dict
+            Free parameter name -> value.
+
+        Examples
+        --------
+        >>> from matfit.fitting import Parametrization
+        >>> par = Parametrization("plastic", 3, fixed={"eta": 1.5})
+        >>> round(float(par.theta(par.z_from_theta({"albedo": 0.5, "alpha": 0.3}))["alpha"]), 6)
+        0.3
+        """
         out, i = {}, 0
         for p, n in zip(self.free, self.sizes):
             v = p.from_unconstrained(z[..., i:i + n])
@@ -497,7 +613,24 @@ class Parametrization:
         return out
 
     def theta_vector(self, z):
-        """Natural values as a flat vector, same layout as ``z``."""
+        """Natural values as a flat vector, same layout as ``z``.
+
+        Parameters
+        ----------
+        z : array_like (..., size)
+            Unconstrained coordinates.
+
+        Returns
+        -------
+        jax.Array (..., size)
+
+        Examples
+        --------
+        >>> from matfit.fitting import Parametrization
+        >>> par = Parametrization("plastic", 3, fixed={"eta": 1.5})
+        >>> [round(float(v), 6) for v in par.theta_vector(par.z_from_theta({"albedo": 0.5, "alpha": 0.3}))]
+        [0.5, 0.5, 0.5, 0.3]
+        """
         parts, i = [], 0
         for p, n in zip(self.free, self.sizes):
             parts.append(p.from_unconstrained(z[..., i:i + n]))
@@ -505,7 +638,25 @@ class Parametrization:
         return jnp.concatenate(parts, axis=-1)
 
     def z_from_theta(self, theta):
-        """Unconstrained vector for natural values given as a dict (per-channel broadcast)."""
+        """The unconstrained vector for natural values (per-channel values broadcast; a shared
+        one takes their mean).
+
+        Parameters
+        ----------
+        theta : mapping
+            Free parameter name -> value (scalar or per channel).
+
+        Returns
+        -------
+        jax.Array (size,)
+
+        Examples
+        --------
+        >>> from matfit.fitting import Parametrization
+        >>> par = Parametrization("plastic", 3, fixed={"eta": 1.5})
+        >>> par.z_from_theta({"albedo": 0.5, "alpha": 0.3}).shape
+        (4,)
+        """
         parts = []
         for p, n in zip(self.free, self.sizes):
             v = jnp.broadcast_to(jnp.asarray(theta[p.name], dtype=float), (n,)) if n > 1 else jnp.reshape(
@@ -514,6 +665,26 @@ class Parametrization:
         return jnp.concatenate(parts)
 
     def log_jacobian(self, z):
+        """``log |d theta / d z|`` summed over the free coordinates (for priors on theta when
+        sampling in z).
+
+        Parameters
+        ----------
+        z : array_like (..., size)
+            Unconstrained coordinates.
+
+        Returns
+        -------
+        jax.Array (...)
+
+        Examples
+        --------
+        >>> from matfit.fitting import Parametrization
+        >>> par = Parametrization("plastic", 3, fixed={"eta": 1.5})
+        >>> import numpy as np
+        >>> round(float(par.log_jacobian(np.zeros(4))), 4)  # 3 x log(1/4) + log(1.499 / 4)
+        -5.1404
+        """
         tot, i = 0.0, 0
         for p, n in zip(self.free, self.sizes):
             tot = tot + jnp.sum(p.log_jacobian(z[..., i:i + n]), axis=-1)
@@ -521,7 +692,25 @@ class Parametrization:
         return tot
 
     def full(self, theta):
-        """All parameter values (free and fixed), per-channel ones broadcast to C."""
+        """All parameter values (free and fixed), per-channel ones broadcast to C.
+
+        Parameters
+        ----------
+        theta : mapping
+            Free parameter name -> value.
+
+        Returns
+        -------
+        dict
+            Every parameter's value as a JAX array.
+
+        Examples
+        --------
+        >>> from matfit.fitting import Parametrization
+        >>> par = Parametrization("plastic", 3, fixed={"eta": 1.5})
+        >>> float(par.full({"albedo": 0.5, "alpha": 0.3})["eta"]), par.full({"albedo": 0.5, "alpha": 0.3})["albedo"].shape
+        (1.5, (3,))
+        """
         out = {}
         for p in self.family.params:
             v = theta[p.name] if p.name in theta else jnp.asarray(self.fixed[p.name], dtype=float)
@@ -533,5 +722,22 @@ class Parametrization:
         return out
 
     def model(self, z):
-        """The model at unconstrained parameters ``z``."""
+        """The model at unconstrained parameters ``z``.
+
+        Parameters
+        ----------
+        z : array_like (size,)
+            Unconstrained coordinates.
+
+        Returns
+        -------
+        AbstractBSDF
+
+        Examples
+        --------
+        >>> from matfit.fitting import Parametrization
+        >>> par = Parametrization("plastic", 3, fixed={"eta": 1.5})
+        >>> type(par.model(par.z_from_theta({"albedo": 0.5, "alpha": 0.3}))).__name__
+        'Plastic'
+        """
         return self.family.build(self.full(self.theta(z)), self.channels)
