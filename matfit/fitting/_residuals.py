@@ -15,7 +15,7 @@ from .lm import GRAM_BLOCK
 from .losses import prepare_targets, residuals_from_targets
 
 __all__ = ["prepared_residual_fn", "split_residual_fn", "objective_fn", "residual_fn", "split_rows", "by_channel",
-           "half_sq", "table_arrays"]
+           "table_arrays"]
 
 
 def prepared_residual_fn(par, loss, robust, scale):
@@ -107,11 +107,6 @@ def split_rows(arrays):
 def by_channel(fn):
     """The flat residuals of ``fn`` as (N, C), the layout :func:`lm_fd` works on."""
     return lambda z, arrays: fn(z, arrays).reshape(arrays[2].shape)
-
-
-def half_sq(r):
-    """``0.5 |r|^2`` of residuals in any of the layouts (one array, or one per channel)."""
-    return 0.5 * sum(jnp.sum(x * x) for x in (r if isinstance(r, (tuple, list)) else (r,)))
 
 
 def table_arrays(table, dtype, weight=None):

@@ -12,10 +12,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..fast import supports_soa
-from .lm import column_groups, widen
+from .lm import column_groups, half_sq, widen
 from .methods import METHODS
 from .params import Parametrization
-from ._residuals import half_sq, objective_fn, prepared_residual_fn, split_residual_fn
+from ._residuals import objective_fn, prepared_residual_fn, split_residual_fn
 
 __all__ = ["COARSE_ROWS", "coarse_rows", "compiled_solver", "fixed_items", "batched_run"]
 

@@ -86,7 +86,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["column_groups", "jacobian", "lm_fd", "LMResult", "normal_equations", "GRAM_BLOCK", "LevenbergMarquardtFD",
+__all__ = ["column_groups", "jacobian", "lm_fd", "LMResult", "normal_equations", "GRAM_BLOCK", "half_sq", "LevenbergMarquardtFD",
            "GroupedDifferences", "BoxedDampedStep", "NielsenDamping", "StepTermination", "widen"]
 
 #: Column block of the channel-split Gram reductions; channel-split residuals padded to a
@@ -253,14 +253,33 @@ def normal_equations(fn, z, args, seeds, owner, central=False, r=None, F=None, w
         E = widen(E)
     A = jnp.einsum("cgp,cgh,chq->pq", E, M, E)
     g = jnp.einsum("cgp,cg->p", E, v)
-    return (_half_sq(r) if F is None else F), A, g, r
+    return (half_sq(r) if F is None else F), A, g, r
 
 
-def _half_sq(r):
-    """0.5 |r|^2, summed in float64 when available (a float32 sum over millions of residuals
-    loses the digits that decide whether a step is accepted); returned in r's dtype."""
+def half_sq(r):
+    """``0.5 |r|^2`` of residuals in any layout (one array, or a tuple of one per channel), summed
+    in float64 when available (a float32 sum over millions of residuals loses the digits that
+    decide whether a step is accepted); returned in r's dtype.
+
+    Parameters
+    ----------
+    r : jax.Array or tuple of jax.Array
+        Residuals.
+
+    Returns
+    -------
+    jax.Array
+        A scalar.
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit.fitting.lm import half_sq
+    >>> float(half_sq((jnp.array([1.0, 2.0]), jnp.array([2.0]))))
+    4.5
+    """
     if _split(r):
-        return sum(_half_sq(rc) for rc in r)
+        return sum(half_sq(rc) for rc in r)
     acc = jnp.promote_types(r.dtype, jnp.float64) if jax.config.read("jax_enable_x64") else r.dtype
     rr = r.astype(acc)
     return (0.5 * jnp.sum(rr * rr)).astype(r.dtype)
@@ -375,7 +394,7 @@ def _extrapolated(fn, args, s, delta, z_new, r_new, F_new, try_it, cap):
     def tried():
         z2 = s.z + alpha * delta
         r2 = fn(z2, args)
-        F2 = _half_sq(r2)
+        F2 = half_sq(r2)
         better = jnp.isfinite(F2) & (F2 < F_new)
         return jax.tree_util.tree_map(lambda a, b: jnp.where(better, a, b), (z2, r2, F2), (z_new, r_new, F_new))
 
@@ -708,7 +727,7 @@ class LevenbergMarquardtFD(eqx.Module):
         def body(s):
             delta = self.descent(s.A, s.mu, s.D, s.g).astype(dt)
             r_new = fn(s.z + delta, args)
-            F_new = _half_sq(r_new)
+            F_new = half_sq(r_new)
             pred = (-jnp.dot(s.g, delta) - 0.5 * jnp.dot(delta, s.A @ delta)).astype(dt)
             rho = (s.F - F_new) / jnp.where(pred > 0, pred, jnp.inf)
             acc = jnp.isfinite(F_new) & (F_new < s.F) & (rho > 0) & jnp.all(jnp.isfinite(delta))
