@@ -258,6 +258,21 @@ def _fraction(s):
 
 
 def build_parser():
+    """The ``matfit`` command's argument parser (one subcommand per command of the module docstring).
+
+    Returns
+    -------
+    argparse.ArgumentParser
+        A parser whose errors are one line with exit status 2; each subcommand sets ``func``,
+        the function that runs it on the parsed arguments.
+
+    Examples
+    --------
+    >>> from matfit.cli import build_parser
+    >>> args = build_parser().parse_args(["fit", "table.npz", "--model", "lambert", "--starts", "2"])
+    >>> args.command, args.model, args.starts, args.method == "mcmc"
+    ('fit', 'lambert', 2, False)
+    """
     from .fitting import FAMILIES, LOSSES
     from .fitting.methods import DEFAULT_METHOD, METHODS
 
@@ -353,7 +368,42 @@ def build_parser():
 
 
 def main(argv=None):
-    """Entry point of the ``matfit`` command."""
+    """Entry point of the ``matfit`` command.
+
+    Switches on the persistent compilation cache (:func:`matfit.cache.enable_compilation_cache`)
+    and runs the subcommand. A ``ValueError`` or ``OSError`` (matfit's errors included) is
+    printed to stderr as one line ``matfit <command>: error: <message>``.
+
+    Parameters
+    ----------
+    argv : sequence of str, optional
+        The arguments (default: ``sys.argv[1:]``).
+
+    Returns
+    -------
+    int
+        The exit status: 0 on success, 2 on an error (argparse exits with 2 itself on bad
+        arguments).
+
+    Examples
+    --------
+    >>> import contextlib, io, os, tempfile, unittest.mock
+    >>> import numpy as np
+    >>> from matfit import Table
+    >>> from matfit.io import save
+    >>> from matfit.cli import main
+    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
+    >>> with tempfile.TemporaryDirectory() as d, unittest.mock.patch.dict(os.environ, {"MATFIT_NO_CACHE": "1"}):
+    ...     save(f"{d}/t.npz", Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1)))
+    ...     with contextlib.redirect_stdout(io.StringIO()) as out:
+    ...         status = main(["info", f"{d}/t.npz"])
+    ...     with contextlib.redirect_stderr(io.StringIO()) as err:
+    ...         missing = main(["info", f"{d}/missing.npz"])
+    >>> status, out.getvalue().splitlines()[0]
+    (0, 'Table: 3 samples (3 valid), channels rgb')
+    >>> missing, err.getvalue().startswith("matfit info: error:")
+    (2, True)
+    """
     parser = build_parser()
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     from .cache import enable_compilation_cache

@@ -19,7 +19,22 @@ GOLD_K = (3.983, 2.385, 1.603)
 
 
 def demo_materials():
-    """The built-in scene's materials, by name."""
+    """The built-in scene's materials, by name.
+
+    Returns
+    -------
+    dict
+        Material name -> matfit model: a white Lambertian, rough gold (GGX, Beckmann and an
+        anisotropic GGX), frosted glass, polished gold and clear glass (gold's index:
+        :data:`GOLD_ETA`, :data:`GOLD_K`).
+
+    Examples
+    --------
+    >>> from matfit.demo import demo_materials
+    >>> mats = demo_materials()
+    >>> len(mats), [name for name, m in mats.items() if m.is_delta]
+    (7, ['polished gold', 'clear glass (1.5)'])
+    """
     eta, k = jnp.array(GOLD_ETA), jnp.array(GOLD_K)
     return {
         "white diffuse": Lambert(0.8),
@@ -37,9 +52,31 @@ def _in_plane(theta_deg, phi=0.0):
     return np.stack([np.sin(t) * np.cos(phi), np.sin(t) * np.sin(phi) + 0 * t, np.cos(t)], -1)
 
 
-def run_demo(out: Path, fit_flow: bool = True):
+def run_demo(out: Path, fit_flow: bool = True) -> None:
     """Write ``lobes.png`` and ``albedo.csv`` into ``out``; with ``fit_flow``, also the fitting job
-    (``demo_synth.npz``, ``report/``, ``compare.json``)."""
+    (``demo_synth.npz``, ``report/``, ``compare.json``).
+
+    ``lobes.png`` shows the in-plane lobes of the non-delta materials of :func:`demo_materials`
+    at three incidences; ``albedo.csv`` holds each material's directional albedo at three
+    viewing angles by quadrature and by importance sampling (also printed).
+
+    Parameters
+    ----------
+    out : str or path-like
+        Output folder, created if needed.
+    fit_flow : bool, default True
+        Also run :func:`run_fit_demo` into ``out``.
+
+    Examples
+    --------
+    >>> import contextlib, io, os, tempfile
+    >>> from matfit.demo import run_demo
+    >>> with tempfile.TemporaryDirectory() as d:  # doctest: +SKIP
+    ...     with contextlib.redirect_stdout(io.StringIO()):  # the albedo table
+    ...         run_demo(d, fit_flow=False)
+    ...     sorted(os.listdir(d))
+    ['albedo.csv', 'lobes.png']
+    """
     out = Path(out)
     _models_tour(out)
     if fit_flow:
@@ -98,9 +135,9 @@ def run_fit_demo(out: Path, scene="demo", family="conductor", mcmc_steps=1500, c
 
     Parameters
     ----------
-    out : path
-        Output folder: ``demo_synth.npz``, ``report/`` (see :func:`matfit.report.write_report`)
-        and ``compare.json``.
+    out : str or path-like
+        Output folder, created if needed: ``demo_synth.npz``, ``report/`` (see
+        :func:`matfit.report.write_report`) and ``compare.json``.
     scene : str, default "demo"
         A shipped data_synth scene.
     family : str, default "conductor"
@@ -117,8 +154,12 @@ def run_fit_demo(out: Path, scene="demo", family="conductor", mcmc_steps=1500, c
 
     Examples
     --------
-    >>> from matfit.demo import run_fit_demo  # doctest: +SKIP
-    >>> run_fit_demo("demo_out")["metrics"]["relative_rmse"] < 0.05  # doctest: +SKIP
+    >>> import contextlib, io, tempfile
+    >>> from matfit.demo import run_fit_demo
+    >>> with tempfile.TemporaryDirectory() as d:  # doctest: +SKIP
+    ...     with contextlib.redirect_stdout(io.StringIO()):
+    ...         numbers = run_fit_demo(d)
+    >>> numbers["metrics"]["relative_rmse"] < 0.05  # doctest: +SKIP
     True
     """
     import time

@@ -85,8 +85,19 @@ def run_pipeline(table, model, *, method=None, loss="l2", fixed=None, tied=(), s
         The family (a key of :data:`matfit.fitting.FAMILIES`).
     method : str, optional
         A method of :data:`matfit.fitting.METHODS` (default: :data:`~matfit.fitting.DEFAULT_METHOD`).
-    loss, fixed, tied, starts, max_steps, seed :
-        As for :func:`matfit.fitting.fit` (``seed`` also seeds the sampler and the comparison's split).
+    loss : str, default "l2"
+        As for :func:`matfit.fitting.fit`.
+    fixed : dict, optional
+        Parameters held at given values, as for :func:`matfit.fitting.fit` (also for the
+        posterior).
+    tied : sequence of str, default ()
+        Per-channel parameters shared by all channels, as for :func:`matfit.fitting.fit`.
+    starts : int, default 4
+        Starts of each of the two fits of :func:`~matfit.fitting.robust_fit`.
+    max_steps : int, default 256
+        Solver steps per start.
+    seed : int, default 0
+        Seed of the fit's starts; it also seeds the sampler and the comparison's split.
     posterior_steps : int, default 0
         Cap on MCMC steps of the posterior sample around the fit (0: no posterior). The noise
         model is the table's ``sigma`` when it has one and the loss is ``l2``, else fitted.
@@ -118,6 +129,13 @@ def run_pipeline(table, model, *, method=None, loss="l2", fixed=None, tied=(), s
     Returns
     -------
     PipelineResult
+        What every step produced; ``files`` lists ``report.md`` (when ``report`` is given), the
+        model file, the exports and the comparison's JSON, in that order.
+
+    Raises
+    ------
+    matfit.errors.ParameterError
+        When ``table`` is not a :class:`~matfit.Table` (the steps raise their own errors).
 
     Examples
     --------

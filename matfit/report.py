@@ -24,8 +24,7 @@ per-row CIEDE2000 (median, 95th percentile) is reported as well. Mono tables are
 spectral tables have no colour difference (``null`` in the JSON).
 
 The fitted model is evaluated by one jitted call on one array that holds the table's rows and all
-sweep directions, so a report costs one compilation per model instead of the many small eager
-calls of a row-by-row evaluation (figures in ``docs/performance.md``).
+sweep directions, so a report compiles each model once (see ``docs/performance.md``).
 """
 
 from __future__ import annotations
@@ -78,10 +77,26 @@ def _normalize_truth(truth, result, channels):
 def truth_for_label(params, label):
     """The true value behind a parameter label (``"alpha"``, ``"eta[1]"``) in ``params``, or None.
 
+    Parameters
+    ----------
+    params : dict or None
+        True parameter values by name (scalars or per-channel sequences).
+    label : str
+        A parameter label: a name, or a name with a channel index (``"eta[1]"``).
+
+    Returns
+    -------
+    float or None
+        The value at the label's channel index (a single value serves every channel), or the
+        mean of the values for a label without an index; None when ``params`` is empty, lacks
+        the name, or the index is out of range.
+
     Examples
     --------
     >>> truth_for_label({"eta": [1.1, 1.2, 1.3]}, "eta[1]"), truth_for_label({"alpha": 0.2}, "k")
     (1.2, None)
+    >>> truth_for_label({"eta": 1.5}, "eta[2]"), truth_for_label({"eta": [1.0, 2.0]}, "eta")
+    (1.5, 1.5)
     """
     if not params:
         return None
@@ -103,10 +118,42 @@ def _sph(w):
 def in_plane_slices(table, n_max=4, tol_theta=2.5, tol_plane=3.0):
     """Up to ``n_max`` incidences of ``table`` with its valid rows near their plane of incidence.
 
-    Returns a list of ``(theta_i_deg, phi_i_rad, rows, signed_theta_o_deg)``: ``rows`` are indices of
-    valid rows whose ``theta_i`` lies within ``tol_theta`` degrees of ``theta_i_deg`` and whose ``wo``
-    lies within ``tol_plane`` degrees of the plane through the normal and that row's ``wi``; the signed
-    viewing zenith is positive on the specular side (away from the light).
+    The incidences are the distinct ``theta_i`` (rounded to 1 degree) of the in-plane rows that
+    hold at least 3 of them (all of them when none does), evenly thinned to ``n_max``. Rows at
+    normal incidence (``theta_i < 0.5`` degrees) use the x-z plane, with the light from ``-x``.
+
+    Parameters
+    ----------
+    table : matfit.Table
+        The measurements.
+    n_max : int, default 4
+        Most incidences returned.
+    tol_theta : float, default 2.5
+        Tolerance on ``theta_i`` (degrees).
+    tol_plane : float, default 3.0
+        Tolerance on the angle between ``wo`` and the plane of incidence (degrees).
+
+    Returns
+    -------
+    list of tuple
+        ``(theta_i_deg, phi_i_rad, rows, signed_theta_o_deg)`` per incidence: the median
+        ``theta_i`` and the mean azimuth of the light (``pi`` at normal incidence), ``rows`` the
+        indices of valid rows whose ``theta_i`` lies within ``tol_theta`` degrees of
+        ``theta_i_deg`` and whose ``wo`` lies within ``tol_plane`` degrees of the plane through
+        the normal and that row's ``wi``, and their signed viewing zenith, positive on the
+        specular side (away from the light). Empty when no valid row is near its plane.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit import Table
+    >>> t = np.radians(np.arange(-60, 61, 10.0))
+    >>> wo = np.stack([np.sin(t), 0 * t, np.cos(t)], -1)  # viewer swept through the x-z plane
+    >>> wi = np.tile([-0.5, 0.0, np.sqrt(0.75)], (len(t), 1))  # light at 30 degrees, from -x
+    >>> [(th, rows, to)] = [(th, rows, to) for th, _, rows, to in in_plane_slices(
+    ...     Table(wo=wo, wi=wi, values=np.full((len(t), 3), 0.1)))]
+    >>> round(th, 6), len(rows), np.round(to).astype(int).tolist()
+    (30.0, 13, [-60, -50, -40, -30, -20, -10, 0, 10, 20, 30, 40, 50, 60])
     """
     valid = np.flatnonzero(table.valid)
     if valid.size == 0:
@@ -184,9 +231,33 @@ def _to_lab(rgb, channels):
 def colour_difference(measured, fitted, cos_i, channels):
     """CIEDE2000 between measured and fitted appearance (see the module docstring).
 
-    ``measured``, ``fitted``: (N, C) BRDF values of valid rows; ``cos_i``: (N,). Returns a dict with
-    ``delta_e_mean_appearance``, ``delta_e_rows_median``, ``delta_e_rows_p95``, the two mean linear
-    sRGB triples and Lab values, or None for spectral channels.
+    Parameters
+    ----------
+    measured, fitted : ndarray (N, C)
+        BRDF values of valid rows.
+    cos_i : array_like (N,)
+        Cosine of the incident zenith angle of each row (its absolute value is used).
+    channels : str or sequence
+        The table's channels: ``"rgb"``, ``"mono"`` (rendered grey) or spectral.
+
+    Returns
+    -------
+    dict or None
+        ``delta_e_mean_appearance``, ``delta_e_rows_median``, ``delta_e_rows_p95``, the two mean
+        linear sRGB triples (``mean_rgb_measured``, ``mean_rgb_fitted``) and their Lab values
+        (``lab_measured``, ``lab_fitted``); None for spectral channels.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> y = np.full((2, 3), 0.1)
+    >>> d = colour_difference(y, y, np.ones(2), "rgb")
+    >>> d["delta_e_mean_appearance"], d["mean_rgb_measured"] == [np.pi * 0.1] * 3
+    (0.0, True)
+    >>> round(colour_difference(y, 1.1 * y, np.ones(2), "rgb")["delta_e_mean_appearance"], 2)
+    2.12
+    >>> colour_difference(y, y, np.ones(2), ("450nm", "550nm", "650nm")) is None
+    True
     """
     import colour
 
@@ -389,33 +460,79 @@ def write_report(result, table, out_dir, posterior=None, truth=None, history=Non
                  seed=0, preview=True) -> dict:
     """Write a fit report (``report.md``, ``report.json``, PNG figures) into ``out_dir``.
 
+    The files are listed in the module docstring. The fitted model is also written as
+    ``model.json`` (:func:`matfit.export.save_model`), which ``matfit export`` and
+    ``matfit render`` read.
+
     Parameters
     ----------
     result : matfit.fitting.FitResult
+        The fit.
     table : matfit.Table
         The table that was fitted (the full table; a subsampled fit may be reported against it).
-    out_dir : path, created if needed
-    posterior : object with ``.chain`` (steps, walkers, p) or (n, p) and ``.labels``, optional
-        e.g. :func:`matfit.fitting.mcmc.sample_posterior`'s result; adds ``corner.png`` and
-        posterior columns.
-    truth : optional
+    out_dir : str or path-like
+        The report's folder, created if needed.
+    posterior : matfit.fitting.PosteriorResult, optional
+        Or any object with ``.chain`` (steps, walkers, p) or (n, p) and ``.labels``; adds
+        posterior columns (mean, standard deviation, 95 % interval of the finite samples) and
+        ``corner.png``.
+    truth : dict or model, optional
         Known true values: a dict of the family's parameters, a matfit model, or the output of
-        :func:`truth_from_table`; adds a truth column and dashed truth lobes.
-    history : sequence of objective values (or one sequence per start), optional
-        Plotted in ``loss.png``; without it the objective reached by each start is plotted.
-    title : str, optional;  max_rows : row cap for residual maps and colour difference;
-    seed : seed of that row subset.
-    preview : bool
+        :func:`data_synth.truth_from_table` (``{"params": ..., "model": ..., "family": ...}``;
+        its ``params`` are ignored when ``family`` is another family); adds a truth column and
+        dashed truth lobes (a dict of all the family's parameters builds the true model).
+    history : sequence of float, or sequence of sequences, optional
+        Objective values per iteration (or one sequence per start), plotted in ``loss.png``;
+        without it the objective reached by each start is plotted.
+    title : str, optional
+        The report's title (default ``"<family> fit"``).
+    max_rows : int, default :data:`MAX_ROWS`
+        Above this many valid rows, residual maps, metrics and colour difference use a random
+        subset of that many.
+    seed : int, default 0
+        Seed of that row subset.
+    preview : bool, default True
         Render spheres under the built-in sky (:func:`matfit.render.render_sphere`): the
         reference (the truth of a synthetic table) | the fit | their difference, in
         ``preview.png``, with the images' mean CIEDE2000; without a reference model (a measured
-        table) the fitted sphere alone. The fitted model is also written as ``model.json``
-        (:func:`matfit.export.save_model`), which ``matfit export`` and ``matfit render`` read.
+        table) the fitted sphere alone. Models of other than 1 or 3 channels are not rendered.
 
     Returns
     -------
     dict
-        The numbers written to ``report.json``.
+        The numbers written to ``report.json``: ``title``, ``model``, ``preview``, ``family``,
+        ``method``, ``loss``, ``converged``, ``steps``, ``wall_time_s``, ``warnings``,
+        ``start_objectives``, ``table``, ``params`` (one dict per label: value, standard
+        error, and truth and posterior where known), ``fixed``, ``metrics``,
+        ``colour_difference`` (see :func:`colour_difference`), ``posterior``,
+        ``truth_available``, ``loss_history`` and ``files``.
+
+    Raises
+    ------
+    matfit.errors.ParameterError
+        When ``result`` is not a fit result or ``table`` not a :class:`~matfit.Table`.
+    ValueError
+        When the table has no valid rows, or ``posterior.chain`` has another shape.
+    TypeError
+        When ``truth`` is neither a dict nor a model.
+
+    Examples
+    --------
+    >>> import numpy as np, os, tempfile
+    >>> from matfit import Table
+    >>> from matfit.fitting import fit
+    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
+    >>> table = Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1))
+    >>> r = fit(table, model="lambert", starts=1)
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     summary = write_report(r, table, d, truth={"albedo": [np.pi * 0.1] * 3}, preview=False)
+    ...     names = sorted(os.listdir(d))
+    >>> names
+    ['lobes.png', 'loss.png', 'model.json', 'report.json', 'report.md', 'residuals.png']
+    >>> summary["params"][0]["label"], round(summary["params"][0]["truth"], 4), summary["truth_available"]
+    ('albedo[0]', 0.3142, True)
+    >>> round(summary["colour_difference"]["delta_e_mean_appearance"], 3)
+    0.0
     """
     from .errors import ParameterError
     from .table import Table
@@ -443,7 +560,7 @@ def write_report(result, table, out_dir, posterior=None, truth=None, history=Non
     slices = in_plane_slices(table)
     sweeps = [_sweep_dirs(th, ph) for th, ph, _, _ in slices]
 
-    # One eager call per model over rows + sweeps.
+    # One jitted call per model over rows + sweeps.
     wo_all = np.concatenate([table.wo[rows]] + [s[0] for s in sweeps])
     wi_all = np.concatenate([table.wi[rows]] + [s[1] for s in sweeps])
     f_all = _eval(result.model, wo_all, wi_all)

@@ -37,7 +37,7 @@ _BIN_DEG = 2.0
 _MIN_BINS, _MIN_ROWS_PER_BIN = 6, 8
 _N_BINS = int(90 / _BIN_DEG)
 #: Larger tables are read from this many of their rows (a fixed random subset): a full MERL
-#: table's million rows give the same start to a few 1e-3 at a fraction of the time.
+#: table's million rows give the same start to a few 1e-3.
 _MAX_ROWS = 50_000
 
 
@@ -57,7 +57,36 @@ def _theta_d_bins(wo, wi, v, valid):
 
 def curve_readable(wo, wi, values, valid):
     """Which of a stack of tables ``(B, N, ...)`` hold enough rows to read a Fresnel curve from
-    (:func:`conductor_guess` returns None for the others), computed for all at once."""
+    (:func:`conductor_guess` returns None for the others), computed for all at once.
+
+    Parameters
+    ----------
+    wo, wi : ndarray (B, N, 3)
+        The rows' directions.
+    values : ndarray (B, N, C)
+        Measured ``f``.
+    valid : ndarray of bool (B, N)
+        The rows to read.
+
+    Returns
+    -------
+    ndarray of bool (B,)
+        True where at least ``_MIN_BINS`` theta_d bins hold ``_MIN_ROWS_PER_BIN`` rows that
+        carry shape information (valid, both directions above the surface, every channel
+        positive, channel mean above ``_MIN_RELATIVE`` times the brightest row's).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from data_synth import geometry
+    >>> from matfit.fitting._conductor_guess import curve_readable
+    >>> wo, wi, ok, _ = geometry.merl_grid(8, 8, 16)
+    >>> wo, wi = wo[ok][None], wi[ok][None]
+    >>> v = np.ones(wo.shape[:2] + (3,))
+    >>> curve_readable(wo, wi, v, np.ones(wo.shape[:2], bool)), curve_readable(wo[:, :20], wi[:, :20], v[:, :20],
+    ...                                                                       np.ones((1, 20), bool))
+    (array([ True]), array([False]))
+    """
     keep, _, _, bins = _theta_d_bins(wo, wi, values, valid)
     B = keep.shape[0]
     counts = np.zeros((B, _N_BINS), int)
@@ -116,11 +145,12 @@ def conductor_guess(wo, wi, values, alpha0, distribution="ggx", eta_range=(0.05,
     --------
     >>> import numpy as np
     >>> from data_synth import geometry
+    >>> from data_synth.synth import evaluate
     >>> from matfit.models import RoughConductor
     >>> from matfit.fitting._conductor_guess import conductor_guess
     >>> wo, wi, ok, _ = geometry.merl_grid(16, 16, 32)
     >>> wo, wi = wo[ok], wi[ok]
-    >>> f = np.asarray(RoughConductor(0.2, [0.3, 1.2, 2.5], [3.0, 5.0, 2.0]).eval(wo, wi))
+    >>> f = evaluate(RoughConductor(0.2, [0.3, 1.2, 2.5], [3.0, 5.0, 2.0]), wo, wi)  # model.eval, jitted
     >>> a, eta, k = conductor_guess(wo, wi, f, alpha0=0.3)
     >>> bool(abs(a - 0.2) < 0.01), bool(np.all(abs(eta / [0.3, 1.2, 2.5] - 1) < 0.25))
     (True, True)

@@ -53,9 +53,16 @@ def identifiability(Jt, labels, lower, upper, gram=None):
 
     Parameters
     ----------
-    Jt : (n, p) Jacobian of the residuals with respect to the natural parameters, or None when
-        ``gram`` (its :math:`J^T J`, (p, p)) is given instead.
-    labels : p names;  lower, upper : (p,) bounds (``inf`` upper: unbounded above).
+    Jt : array_like (n, p) or None
+        Jacobian of the residuals with respect to the natural parameters, or None when ``gram``
+        is given instead.
+    labels : sequence of str (p,)
+        Parameter names.
+    lower, upper : ndarray (p,)
+        Bounds (``inf`` upper: unbounded above); each parameter is scaled to its bound width
+        (to 1 where unbounded).
+    gram : array_like (p, p), optional
+        :math:`J^T J`, used instead of ``Jt`` when given.
 
     Returns
     -------
@@ -69,6 +76,8 @@ def identifiability(Jt, labels, lower, upper, gram=None):
     >>> J = np.array([[1.0, 1.0], [2.0, 2.0], [3.0, 3.0]])   # only a + b is seen
     >>> identifiability(J, ["a", "b"], np.zeros(2), np.ones(2))
     ['a', 'b']
+    >>> identifiability(np.eye(2), ["a", "b"], np.zeros(2), np.ones(2))
+    []
     """
     span = np.where(np.isfinite(upper), upper - lower, 1.0)
     if gram is None:
@@ -94,16 +103,65 @@ def diagnose(*, labels, values, stderr, lower, upper, residuals, converged, step
              start_reference=None, start_stderr=None):
     """Warnings (list of str) about a fit's optimum; see the module docstring for each check.
 
-    The Jacobian in natural parameters enters as ``Jt`` (n, p) or as its Gram matrix ``gram``.
+    All arguments are keywords.
 
-    ``data_scale`` is the root mean square of the weighted data: residual spreads below
-    ``1e-7 * data_scale`` count as an exact fit (no outlier test on rounding noise).
-    ``start_values`` / ``start_objectives`` are what each start reached; they are compared with
-    ``start_reference`` at ``start_stderr`` (default: ``values`` and ``stderr``). A large table's
-    starts are compared where they ended on its subset (``fit`` then passes the best start's
-    subset solution and the subset's standard errors).
-    Returns ``(warnings, unidentified)``; ``unidentified`` lists the labels whose standard errors
-    should be reported as ``inf``.
+    Parameters
+    ----------
+    labels : sequence of str (p,)
+        Parameter names.
+    values, stderr : ndarray (p,)
+        The optimum and its standard errors, in natural parameters.
+    lower, upper : ndarray (p,)
+        Bounds (``inf`` upper: unbounded above).
+    residuals : array_like
+        The residuals at the optimum; exact zeros (unused entries) are left out of the outlier
+        and chi-square checks.
+    converged : bool
+        Whether the solver met its tolerances.
+    steps, max_steps : int
+        Steps taken and the cap: ``steps >= max_steps`` is reported as the reason of a
+        non-converged fit.
+    known_sigma : bool
+        The residuals are in units of the table's own sigma (enables the chi-square check).
+    dof : int
+        Degrees of freedom of the chi-square check (residuals minus free parameters).
+    Jt : array_like (n, p), optional
+        The Jacobian in natural parameters; or give its Gram matrix ``gram`` (p, p) instead
+        (see :func:`identifiability`).
+    gram : array_like (p, p), optional
+        :math:`J^T J`.
+    data_scale : float, default 0.0
+        The root mean square of the weighted data: residual spreads below
+        ``1e-7 * data_scale`` count as an exact fit (no outlier test on rounding noise).
+    start_values : array_like (starts, p), optional
+        What each start reached.
+    start_objectives : array_like (starts,), optional
+        The objective each start reached.
+    best : int, default 0
+        Index of the best start.
+    start_reference, start_stderr : ndarray (p,), optional
+        Where and at which standard errors the starts are compared (default: ``values`` and
+        ``stderr``). A large table's starts are compared where they ended on its subset
+        (``fit`` then passes the best start's subset solution and the subset's standard
+        errors).
+
+    Returns
+    -------
+    warnings : list of str
+        One plain-language warning per finding.
+    unidentified : list of str
+        The labels whose standard errors should be reported as ``inf``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit.fitting.diagnostics import diagnose
+    >>> warnings, unident = diagnose(labels=["alpha"], values=np.array([1e-6]), stderr=np.array([0.01]),
+    ...                              lower=np.zeros(1), upper=np.ones(1), residuals=np.full(10, 0.1),
+    ...                              converged=True, steps=5, max_steps=256, known_sigma=False, dof=9,
+    ...                              Jt=np.ones((10, 1)))
+    >>> [w.split(":")[0] for w in warnings], unident
+    (['at a bound'], [])
     """
     out = []
     if not converged:

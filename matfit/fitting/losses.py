@@ -14,7 +14,9 @@ For predictions :math:`f` and measurements :math:`y` at the table's directions, 
 Robust variants (``robust="huber"`` or ``"cauchy"``, scale ``c``) replace each residual by
 :math:`\operatorname{sign}(r)\sqrt{2\rho(r)}` so that least squares minimizes
 :math:`\sum\rho(r)`: Huber :math:`\rho = r^2/2` for :math:`|r| \le c`, else
-:math:`c(|r| - c/2)`; Cauchy :math:`\rho = (c^2/2)\log(1 + r^2/c^2)`.
+:math:`c(|r| - c/2)`; Cauchy :math:`\rho = (c^2/2)\log(1 + r^2/c^2)`. The constant is
+:math:`c = 1.345\,s` (Huber) or :math:`c = 2.385\,s` (Cauchy) for the ``scale`` argument
+:math:`s` of :func:`residuals`.
 
 References
 ----------
@@ -38,7 +40,32 @@ ROBUST = (None, "huber", "cauchy")
 REL_EPS = 1e-3
 
 
-def check_loss(loss, robust):
+def check_loss(loss, robust) -> None:
+    """Raise unless ``loss`` is one of :data:`LOSSES` and ``robust`` one of :data:`ROBUST`.
+
+    Parameters
+    ----------
+    loss : str
+        The loss name.
+    robust : str or None
+        The robust variant.
+
+    Raises
+    ------
+    matfit.errors.ParameterError
+        Naming the accepted values.
+
+    Examples
+    --------
+    >>> from matfit.errors import ParameterError
+    >>> from matfit.fitting.losses import check_loss
+    >>> check_loss("e2", "huber")
+    >>> try:
+    ...     check_loss("l1", None)
+    ... except ParameterError as e:
+    ...     print(e)
+    loss must be one of ['l2', 'e2', 'cosine', 'relative'], got 'l1'
+    """
     if loss not in LOSSES:
         raise ParameterError(f"loss must be one of {list(LOSSES)}, got {loss!r}")
     if robust not in ROBUST:
@@ -48,9 +75,37 @@ def check_loss(loss, robust):
 def residuals(pred, values, weight, cos_i, loss="l2", robust=None, scale=1.0):
     """Residual vector (N, C) for predictions ``pred`` against ``values``.
 
-    ``weight`` (N, C) is zero on invalid rows (see :meth:`matfit.Table.effective_weight`).
     The same as ``residuals_from_targets(pred, *prepare_targets(values, weight, cos_i, loss),
     cos_i, loss, robust, scale)``: a fit prepares the data's part once.
+
+    Parameters
+    ----------
+    pred : array_like (N, C)
+        Model predictions at the table's directions.
+    values : array_like (N, C)
+        Measurements (may be NaN where ``weight`` is 0).
+    weight : array_like (N, C)
+        Weights, ``1/sigma^2`` when the table has standard deviations; zero on invalid rows
+        (see :meth:`matfit.Table.effective_weight`).
+    cos_i : array_like (N,)
+        Cosine of the incident zenith angle of each row.
+    loss : {"l2", "e2", "cosine", "relative"}, default "l2"
+        The loss (see the module docstring).
+    robust : {None, "huber", "cauchy"}, default None
+        The robust variant.
+    scale : float or array_like, default 1.0
+        Scale ``s`` of the robust variant (finite, > 0); ignored when ``robust`` is None.
+
+    Returns
+    -------
+    jax.Array (N, C)
+        The residuals; 0 where ``weight`` is 0.
+
+    Raises
+    ------
+    matfit.errors.ParameterError
+        When ``loss`` or ``robust`` is unknown, the shapes do not broadcast, or ``scale`` is not
+        finite and > 0 with a robust variant.
 
     Examples
     --------
@@ -59,6 +114,8 @@ def residuals(pred, values, weight, cos_i, loss="l2", robust=None, scale=1.0):
     >>> r = residuals(jnp.array([[2.0]]), jnp.array([[1.0]]), jnp.array([[4.0]]), jnp.array([1.0]))
     >>> float(r[0, 0])
     2.0
+    >>> float(residuals(jnp.array([[2.0]]), jnp.array([[1.0]]), jnp.array([[0.0]]), jnp.array([1.0]))[0, 0])
+    0.0
     """
     check_loss(loss, robust)
     shapes = {"pred": jnp.shape(pred), "values": jnp.shape(values), "weight": jnp.shape(weight),
@@ -83,11 +140,34 @@ def _transform(x, cos_i, loss):
 
 
 def prepare_targets(values, weight, cos_i, loss="l2"):
-    """The data's part of :func:`residuals`, computed once per table: ``(target, factor)`` with
-    ``r = factor * (T(pred) - target)`` (0 where ``factor`` is 0), ``T`` the loss's transform
-    (``log(1 + f cos_i)`` for ``"e2"``, identity otherwise) and ``factor`` ``sqrt(w)`` times the
-    loss's weight (``cos_i`` for ``"cosine"``, ``1 / (|y| + eps)`` for ``"relative"``); rows with
-    ``weight = 0`` get ``factor = 0`` and ``target = 0`` (NaN allowed there).
+    """The data's part of :func:`residuals`, computed once per table.
+
+    ``r = factor * (T(pred) - target)`` (0 where ``factor`` is 0), with ``T`` the loss's
+    transform (``log(1 + f cos_i)`` for ``"e2"``, identity otherwise) and ``factor`` ``sqrt(w)``
+    times the loss's weight (``cos_i`` for ``"cosine"``, ``1 / (|y| + eps)`` for
+    ``"relative"``, ``eps`` = :data:`REL_EPS`).
+
+    Parameters
+    ----------
+    values : array_like (N, C)
+        Measurements (NaN allowed where ``weight`` is 0).
+    weight : array_like (N, C)
+        Weights, zero on invalid rows.
+    cos_i : array_like (N,)
+        Cosine of the incident zenith angle of each row.
+    loss : {"l2", "e2", "cosine", "relative"}, default "l2"
+        The loss.
+
+    Returns
+    -------
+    target, factor : jax.Array (N, C)
+        ``T(values)`` and the residual factor; rows with ``weight = 0`` get ``factor = 0`` and
+        ``target = 0``.
+
+    Raises
+    ------
+    matfit.errors.ParameterError
+        When ``loss`` is unknown.
 
     Examples
     --------
@@ -112,6 +192,32 @@ def prepare_targets(values, weight, cos_i, loss="l2"):
 def residuals_from_targets(pred, target, factor, cos_i, loss="l2", robust=None, scale=1.0):
     """Residuals from data prepared by :func:`prepare_targets` (see :func:`residuals`).
 
+    Parameters
+    ----------
+    pred : array_like (N, C)
+        Model predictions.
+    target, factor : array_like (N, C)
+        The output of :func:`prepare_targets`.
+    cos_i : array_like (N,)
+        Cosine of the incident zenith angle of each row (used by ``"e2"``'s transform).
+    loss : {"l2", "e2", "cosine", "relative"}, default "l2"
+        The loss ``target`` and ``factor`` were prepared for.
+    robust : {None, "huber", "cauchy"}, default None
+        The robust variant (see the module docstring).
+    scale : float or array_like, default 1.0
+        Scale ``s`` of the robust variant; not checked here (see :func:`residuals`).
+
+    Returns
+    -------
+    jax.Array (N, C)
+        ``factor * (T(pred) - target)``, 0 where ``factor`` is 0; with a robust variant
+        ``sign(r) sqrt(2 rho(r))``.
+
+    Raises
+    ------
+    matfit.errors.ParameterError
+        When ``robust`` is unknown.
+
     Examples
     --------
     >>> import jax.numpy as jnp
@@ -119,6 +225,8 @@ def residuals_from_targets(pred, target, factor, cos_i, loss="l2", robust=None, 
     >>> t, f = prepare_targets(jnp.array([[1.0]]), jnp.array([[4.0]]), jnp.array([1.0]))
     >>> float(residuals_from_targets(jnp.array([[2.0]]), t, f, jnp.array([1.0]))[0, 0])
     2.0
+    >>> round(float(residuals_from_targets(jnp.array([[2.0]]), t, f, jnp.array([1.0]), robust="huber")[0, 0]), 4)
+    1.8897
     """
     r = jnp.where(factor != 0, factor * (_transform(pred, cos_i, loss) - target), 0)
     if robust is None:

@@ -76,6 +76,7 @@ import numpy as np
 from ..errors import MatfitError, ParameterError
 from ..fast import supports_soa
 from ..table import Table
+from ._solver import fixed_items
 from .fit import split_residual_fn
 from .losses import check_loss, prepare_targets, residuals_from_targets
 from .params import Parametrization, get_family
@@ -91,7 +92,22 @@ NPZ_FORMAT = "matfit.posterior/1"
 
 
 class SamplingError(MatfitError):
-    """The sampler cannot run as asked (no finite starting point, ...)."""
+    """The sampler cannot run as asked (no finite starting point, ...).
+
+    Parameters
+    ----------
+    *args : object
+        As for :class:`~matfit.errors.MatfitError`: one message naming the problem.
+
+    Examples
+    --------
+    >>> from matfit.errors import MatfitError
+    >>> from matfit.fitting.mcmc import SamplingError
+    >>> issubclass(SamplingError, MatfitError)
+    True
+    >>> str(SamplingError("sample_posterior: no finite log-probability near the start"))
+    'sample_posterior: no finite log-probability near the start'
+    """
 
 
 # --------------------------------------------------------------------------------------------
@@ -173,10 +189,6 @@ def _pack(args, dtype):
     return treedef, specs, flat
 
 
-def _fixed_items(fixed):
-    return tuple(sorted((k, tuple(np.atleast_1d(np.asarray(v, float)).tolist())) for k, v in (fixed or {}).items()))
-
-
 def _prior_arrays(prior, par):
     """(mask, mean, sd) vectors over the free parameters for a prior spec, and a description."""
     p = par.size
@@ -222,7 +234,66 @@ class LogProb:
     (``z`` and, with ``noise="fit"``, ``log s`` last) to (n,) float64 log-probabilities.
 
     Calls are evaluated in fixed-size blocks (``block`` rows, padded) so that the jitted function
-    compiles once per configuration and block size.
+    compiles once per configuration and block size. A single point ``X`` of shape (d,) gives a
+    scalar; points with another number of coordinates than ``ndim`` raise
+    :class:`~matfit.errors.ParameterError`. Built by :func:`make_log_prob`, not directly.
+
+    Parameters
+    ----------
+    par : matfit.fitting.Parametrization
+        The parametrization of the free parameters.
+    batched : callable
+        The jitted, ``vmap``-ed log-probability ``batched(X, args)``.
+    to_natural : callable
+        The jitted map from ``z`` to the natural parameter vector.
+    args : tuple
+        The table's data and the prior's arrays, the second argument of ``batched``.
+    noise : {"table", "fit"}
+        The noise model.
+    prior_desc : str
+        Description of the prior (``"uniform"`` or ``"gaussian {...}"``).
+    block : int
+        Number of points per compiled call.
+    dtype : dtype
+        Float dtype of the computation.
+
+    Attributes
+    ----------
+    par : matfit.fitting.Parametrization
+        The parametrization.
+    args : tuple
+        The table's data and the prior's arrays.
+    noise : str
+        The noise model.
+    prior : str
+        Description of the prior.
+    block : int
+        Number of points per compiled call (:func:`sample_posterior` sets half the ensemble).
+    dtype : numpy.dtype
+        Float dtype of the computation.
+    ndim : int
+        Coordinates per point: the free parameters, plus one (``log s``) with ``noise="fit"``.
+    labels : list of str
+        Names of the coordinates (``noise_scale`` last with ``noise="fit"``).
+    noise_floor : float
+        The absolute floor of the relative noise model (0 unless ``noise="fit"``), set by
+        :func:`make_log_prob`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit import Table
+    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
+    >>> table = Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1), sigma=np.full((3, 3), 0.01))
+    >>> from matfit.fitting import make_log_prob
+    >>> lp = make_log_prob(table, model="lambert")
+    >>> lp.labels, lp.ndim
+    (['albedo[0]', 'albedo[1]', 'albedo[2]'], 3)
+    >>> lp(np.zeros((5, 3))).shape, np.ndim(lp(np.zeros(3)))
+    ((5,), 0)
+    >>> z = np.repeat(np.linspace(-3, 3, 601)[:, None], 3, axis=1)  # equal albedos
+    >>> round(float(lp.to_natural(z)[np.argmax(lp(z)), 0]), 2)  # the mode: albedo = pi * 0.1
+    0.31
     """
 
     def __init__(self, par, batched, to_natural, args, noise, prior_desc, block, dtype):
@@ -255,7 +326,31 @@ class LogProb:
         return out[0] if single else out
 
     def to_natural(self, X):
-        """Natural parameter values (and ``s``) for walkers ``X`` (..., d)."""
+        """Natural parameter values (and ``s``) for walkers ``X`` (..., d).
+
+        Parameters
+        ----------
+        X : array_like (..., d)
+            Points in the sampled space: ``z`` and, with ``noise="fit"``, ``log s`` last.
+
+        Returns
+        -------
+        ndarray (..., d)
+            The natural parameters ``theta(z)`` (float64) and, with ``noise="fit"``, ``s``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from matfit import Table
+        >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
+        >>> table = Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1), sigma=np.full((3, 3), 0.01))
+        >>> from matfit.fitting import make_log_prob
+        >>> lp = make_log_prob(table, model="lambert", noise="fit")
+        >>> lp.labels
+        ['albedo[0]', 'albedo[1]', 'albedo[2]', 'noise_scale']
+        >>> lp.to_natural(np.array([0.0, 0.0, 0.0, np.log(0.1)])).round(6)  # albedos at the middle of [0, 1]
+        array([0.5, 0.5, 0.5, 0.1])
+        """
         X = np.asarray(X, dtype=np.float64)
         p = self.par.size
         th = np.asarray(self._to_natural(jnp.asarray(X[..., :p], dtype=self.dtype)), dtype=np.float64)
@@ -269,10 +364,59 @@ def make_log_prob(table, model="plastic", fixed=None, tied=(), loss="l2", noise=
     """The log-posterior :class:`LogProb` that :func:`sample_posterior` hands to emcee (see the
     module docstring for the likelihood, the priors and the noise models).
 
-    Arguments are those of :func:`sample_posterior`; ``block`` is the number of points per
-    compiled call (inputs are padded to it; default 8, ``sample_posterior`` uses half the
-    ensemble). With ``noise="fit"`` the points are ``(z, log s)``; ``to_natural`` maps them to
+    With ``noise="fit"`` the points are ``(z, log s)``; :meth:`LogProb.to_natural` maps them to
     the natural parameters and ``s``.
+
+    Parameters
+    ----------
+    table : matfit.Table
+        The measurements; with ``noise="table"`` it must have ``sigma``.
+    model : str, default "plastic"
+        Family name (see :data:`matfit.fitting.FAMILIES`).
+    fixed : dict, optional
+        Parameters held at given values, as for :func:`matfit.fitting.fit`.
+    tied : str or sequence of str, default ()
+        Per-channel parameters shared by all channels, as for :func:`matfit.fitting.fit`.
+    loss : str, default "l2"
+        One of :data:`~matfit.fitting.losses.LOSSES` (no robust losses).
+    noise : {"table", "fit"}, default "table"
+        The noise model (see :func:`sample_posterior`).
+    prior : "uniform" or dict, default "uniform"
+        Uniform in the natural parameters within their bounds, or Gaussian ``(mean, sd)`` per
+        parameter name or label (see the module docstring).
+    noise_floor : float, optional
+        Absolute floor of the relative noise model (``noise="fit"`` only; default ``1e-5`` times
+        the median ``|t(y)|`` of the usable entries, ``1e-12`` when that is 0).
+    block : int, optional
+        Number of points per compiled call (inputs are padded to it); default 8
+        (:func:`sample_posterior` uses half the ensemble).
+    dtype : dtype, optional
+        JAX float dtype of the computation (default: JAX's default float).
+
+    Returns
+    -------
+    LogProb
+        The log-posterior, with its ``noise_floor`` set.
+
+    Raises
+    ------
+    matfit.errors.ParameterError
+        When ``table`` is not a :class:`~matfit.Table`, ``model``, ``loss``, ``noise``, ``prior``
+        or ``noise_floor`` is invalid, ``noise="table"`` meets a table without ``sigma``, or the
+        table has no more usable residuals than sampled parameters.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit import Table
+    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
+    >>> table = Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1), sigma=np.full((3, 3), 0.01))
+    >>> from matfit.fitting import make_log_prob
+    >>> lp = make_log_prob(table, model="lambert", prior={"albedo": (0.3, 0.05)})
+    >>> lp.prior
+    'gaussian {"albedo": [[0.3, 0.3, 0.3], [0.05, 0.05, 0.05]]}'
+    >>> bool(lp(np.full(3, -0.78)) > lp(np.full(3, 1.0)))  # albedos 0.31 against 0.73
+    True
     """
     if not isinstance(table, Table):
         raise ParameterError(f"sample_posterior: table must be a matfit.Table, got {type(table).__name__}")
@@ -285,7 +429,7 @@ def make_log_prob(table, model="plastic", fixed=None, tied=(), loss="l2", noise=
                              "use noise='fit' to sample a relative noise scale instead")
     if isinstance(tied, str):
         tied = (tied,)
-    par, batched, to_natural, prepare = _compiled(model, table.n_channels, _fixed_items(fixed), tuple(tied), loss,
+    par, batched, to_natural, prepare = _compiled(model, table.n_channels, fixed_items(fixed), tuple(tied), loss,
                                                   noise)
     pmask, pmean, psd, pdesc = _prior_arrays(prior, par)
     weight = table.effective_weight()
@@ -334,19 +478,67 @@ class PosteriorResult:
 
     Attributes
     ----------
-    family, loss, noise, prior : str
-    labels : names of the sampled parameters (``noise_scale`` last with ``noise="fit"``)
-    chain : (steps, walkers, p) production chain after burn-in, thinned by ``thin``
-    log_prob : (steps, walkers) log-posterior of the stored samples
-    median, mean, std : (p,)
-    ci90 : (p, 2) 5th and 95th percentiles;  ci68 : (p, 2) 16th and 84th percentiles
-    acceptance_fraction : (walkers,) production acceptance fraction of each walker
-    autocorr_time : (p,) integrated autocorrelation time of the production run (in steps)
-    n_effective : (p,) walkers * production steps / autocorr_time
-    burn_in : steps discarded;  n_steps : production steps (before thinning);  thin
-    n_walkers, tau_factor
-    converged : n_steps > tau_factor * max(autocorr_time)
-    wall_time : seconds;  noise_floor : the absolute floor of the relative noise model (0 unless noise="fit")
+    family : str
+        The model family.
+    loss : str
+        The loss of the likelihood.
+    noise : str
+        The noise model, ``"table"`` or ``"fit"``.
+    prior : str
+        Description of the prior (``"uniform"`` or ``"gaussian {...}"``).
+    labels : list of str
+        Names of the sampled parameters (``noise_scale`` last with ``noise="fit"``).
+    chain : ndarray (steps, walkers, p)
+        Production chain after burn-in, thinned by ``thin``.
+    log_prob : ndarray (steps, walkers)
+        Log-posterior of the stored samples.
+    median, mean, std : ndarray (p,)
+        Median, mean and standard deviation (``ddof=1``) of the stored samples.
+    ci90 : ndarray (p, 2)
+        5th and 95th percentiles.
+    ci68 : ndarray (p, 2)
+        16th and 84th percentiles.
+    acceptance_fraction : ndarray (walkers,)
+        Production acceptance fraction of each walker.
+    autocorr_time : ndarray (p,)
+        Integrated autocorrelation time of the production run (in steps).
+    n_effective : ndarray (p,)
+        ``walkers * production steps / autocorr_time``.
+    burn_in : int
+        Steps discarded.
+    n_steps : int
+        Production steps (before thinning).
+    thin : int
+        Thinning of the stored chain.
+    n_walkers : int
+        Number of walkers.
+    tau_factor : float
+        The run-length target: ``n_steps > tau_factor * max(autocorr_time)``.
+    converged : bool
+        ``n_steps > tau_factor * max(autocorr_time)``.
+    wall_time : float
+        Seconds.
+    noise_floor : float, default 0.0
+        The absolute floor of the relative noise model (0 unless ``noise="fit"``).
+    fixed : dict, default {}
+        The parameters held fixed, as arrays.
+    tied : tuple of str, default ()
+        The tied per-channel parameters.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit import Table
+    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
+    >>> table = Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1), sigma=np.full((3, 3), 0.01))
+    >>> from matfit.fitting import fit, sample_posterior
+    >>> start = fit(table, model="lambert", starts=1)
+    >>> post = sample_posterior(table, model="lambert", start=start, max_steps=200, chunk=50, tau_factor=10,
+    ...                         progress=False)
+    >>> post.chain.shape, post.samples.shape, post.n_steps, post.thin
+    ((25, 12, 3), (300, 3), 100, 4)
+    >>> bool(np.all((post.ci90[:, 0] < post.median) & (post.median < post.ci90[:, 1])))
+    True
     """
 
     family: str
@@ -377,17 +569,87 @@ class PosteriorResult:
 
     @property
     def samples(self):
-        """The chain flattened to (steps * walkers, p)."""
+        """The chain flattened to (steps * walkers, p).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from matfit import Table
+        >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
+        >>> table = Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1), sigma=np.full((3, 3), 0.01))
+        >>> from matfit.fitting import fit, sample_posterior
+        >>> start = fit(table, model="lambert", starts=1)
+        >>> post = sample_posterior(table, model="lambert", start=start, max_steps=200, chunk=50, tau_factor=10,
+        ...                         progress=False)
+        >>> post.samples.shape == (post.chain.shape[0] * post.n_walkers, 3)
+        True
+        """
         return self.chain.reshape(-1, self.chain.shape[-1])
 
     def interval(self, level=0.9):
-        """Central credible interval (p, 2) at ``level`` from the stored samples."""
+        """Central credible interval (p, 2) at ``level`` from the stored samples.
+
+        Parameters
+        ----------
+        level : float, default 0.9
+            Probability mass of the interval, in (0, 1).
+
+        Returns
+        -------
+        ndarray (p, 2)
+            The ``50 (1 - level)`` and ``100 - 50 (1 - level)`` percentiles of :attr:`samples`
+            per parameter.
+
+        Raises
+        ------
+        matfit.errors.ParameterError
+            When ``level`` is not in (0, 1).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from matfit import Table
+        >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
+        >>> table = Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1), sigma=np.full((3, 3), 0.01))
+        >>> from matfit.fitting import fit, sample_posterior
+        >>> start = fit(table, model="lambert", starts=1)
+        >>> post = sample_posterior(table, model="lambert", start=start, max_steps=200, chunk=50, tau_factor=10,
+        ...                         progress=False)
+        >>> lo, hi = post.interval(0.5)[0]
+        >>> bool(post.ci90[0, 0] < lo < post.median[0] < hi < post.ci90[0, 1])
+        True
+        """
         if not 0 < level < 1:
             raise ParameterError(f"interval: level must be in (0, 1), got {level!r}")
         q = 50 * (1 - level)
         return np.percentile(self.samples, [q, 100 - q], axis=0).T
 
     def summary(self) -> str:
+        """A text table of the run and of each parameter's median, intervals, ``tau`` and ``n_eff``.
+
+        Returns
+        -------
+        str
+            One line about the run (walkers, burn-in, steps, acceptance, convergence, time), a
+            header, then one line per parameter: median, 5 %, 95 %, 16 %, 84 % percentiles,
+            autocorrelation time and effective sample size.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from matfit import Table
+        >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
+        >>> table = Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1), sigma=np.full((3, 3), 0.01))
+        >>> from matfit.fitting import fit, sample_posterior
+        >>> start = fit(table, model="lambert", starts=1)
+        >>> post = sample_posterior(table, model="lambert", start=start, max_steps=200, chunk=50, tau_factor=10,
+        ...                         progress=False)
+        >>> lines = post.summary().splitlines()
+        >>> lines[0].split(":")[0], lines[1].split()[:2], lines[2].split()[0]
+        ('lambert posterior (l2, noise=table, prior=uniform)', ['parameter', 'median'], 'albedo[0]')
+        >>> len(lines)
+        5
+        """
         lines = [f"{self.family} posterior ({self.loss}, noise={self.noise}, prior={self.prior}): "
                  f"{self.n_walkers} walkers, burn-in {self.burn_in}, {self.n_steps} steps (thin {self.thin}), "
                  f"acceptance {np.mean(self.acceptance_fraction):.2f}, converged={self.converged} "
@@ -405,10 +667,34 @@ class PosteriorResult:
     _SCALARS = ("family", "loss", "noise", "prior", "burn_in", "n_steps", "thin", "n_walkers", "tau_factor",
                 "converged", "wall_time", "noise_floor", "fixed", "tied")
 
-    def save(self, path, **extra):
+    def save(self, path, **extra) -> None:
         """Write the chains and the summaries to ``path`` (``.npz``, readable without pickle).
 
-        ``extra`` JSON-serializable entries (e.g. a report) are stored in the metadata.
+        Parameters
+        ----------
+        path : str or path-like
+            The file (:func:`numpy.savez` appends ``.npz`` to a name without it).
+        **extra
+            JSON-serializable entries (e.g. a report), stored in the metadata under ``"extra"``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from matfit import Table
+        >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
+        >>> table = Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1), sigma=np.full((3, 3), 0.01))
+        >>> from matfit.fitting import fit, sample_posterior
+        >>> start = fit(table, model="lambert", starts=1)
+        >>> post = sample_posterior(table, model="lambert", start=start, max_steps=200, chunk=50, tau_factor=10,
+        ...                         progress=False)
+        >>> import json, tempfile
+        >>> with tempfile.TemporaryDirectory() as d:
+        ...     post.save(f"{d}/post.npz", note="example")
+        ...     with np.load(f"{d}/post.npz") as f:
+        ...         meta = json.loads(str(f["meta"]))
+        ...         shape = f["chain"].shape
+        >>> meta["format"], meta["extra"], shape == post.chain.shape
+        ('matfit.posterior/1', {'note': 'example'}, True)
         """
         meta = {k: getattr(self, k) for k in self._SCALARS}
         meta["fixed"] = {k: np.asarray(v, float).tolist() for k, v in self.fixed.items()}
@@ -420,7 +706,41 @@ class PosteriorResult:
 
     @classmethod
     def load(cls, path) -> "PosteriorResult":
-        """Read a file written by :meth:`save`."""
+        """Read a file written by :meth:`save`.
+
+        Parameters
+        ----------
+        path : str or path-like
+            The ``.npz`` file.
+
+        Returns
+        -------
+        PosteriorResult
+            The result as saved (the ``extra`` metadata is not part of it).
+
+        Raises
+        ------
+        matfit.errors.ParameterError
+            When the file is not in the ``matfit.posterior/1`` format.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from matfit import Table
+        >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
+        >>> table = Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1), sigma=np.full((3, 3), 0.01))
+        >>> from matfit.fitting import fit, sample_posterior
+        >>> start = fit(table, model="lambert", starts=1)
+        >>> post = sample_posterior(table, model="lambert", start=start, max_steps=200, chunk=50, tau_factor=10,
+        ...                         progress=False)
+        >>> import tempfile
+        >>> from matfit.fitting import PosteriorResult
+        >>> with tempfile.TemporaryDirectory() as d:
+        ...     post.save(f"{d}/post.npz")
+        ...     back = PosteriorResult.load(f"{d}/post.npz")
+        >>> back.labels == post.labels, bool(np.array_equal(back.chain, post.chain)), back.n_steps == post.n_steps
+        (True, True, True)
+        """
         with np.load(path, allow_pickle=False) as f:
             meta = json.loads(str(f["meta"]))
             if meta.get("format") != NPZ_FORMAT:
@@ -452,38 +772,80 @@ def sample_posterior(table, model="plastic", fixed=None, tied=(), loss="l2", noi
     Parameters
     ----------
     table : matfit.Table
-    model, fixed, tied, loss : as for :func:`matfit.fitting.fit` (no robust losses).
-    noise : {"table", "fit"}
+        The measurements; with ``noise="table"`` it must have ``sigma``.
+    model : str, default "plastic"
+        Family name, as for :func:`matfit.fitting.fit`.
+    fixed : dict, optional
+        Parameters held at given values, as for :func:`matfit.fitting.fit`.
+    tied : str or sequence of str, default ()
+        Per-channel parameters shared by all channels, as for :func:`matfit.fitting.fit`.
+    loss : str, default "l2"
+        As for :func:`matfit.fitting.fit` (no robust losses).
+    noise : {"table", "fit"}, default "table"
         ``"table"``: the table's ``sigma`` (required) is the noise. ``"fit"``: a relative noise
         scale ``s`` (``sigma = s |value| + noise_floor``) is sampled as well.
-    prior : "uniform" or dict
+    prior : "uniform" or dict, default "uniform"
         Uniform in the natural parameters within their bounds, or Gaussian ``(mean, sd)`` per
         parameter name or label (see the module docstring).
     n_walkers : int, optional
-        Even, at least twice the number of sampled parameters; default ``4 p`` (at least 8).
-    max_steps : int
-        Cap on the total number of steps (burn-in and production).
-    tau_factor : float
+        Even, at least twice the number ``d`` of sampled parameters (``noise_scale`` included);
+        default ``4 d`` (at least 8).
+    max_steps : int, default 20000
+        Cap on the total number of steps (burn-in and production), at least 100; the burn-in
+        takes at most half of it.
+    tau_factor : float, default 50
         The production run is extended until it is longer than ``tau_factor * max(tau)``.
-    start : FitResult, optional
-        The walkers start in a small ball around ``start.z`` (radius a tenth of its standard
-        errors in ``z``); by default :func:`matfit.fitting.fit` is run first.
-    seed : int
-    progress : bool
+    start : matfit.fitting.FitResult, optional
+        A fit of the same family and free parameters: the walkers start in a small ball around
+        ``start.z`` (radius a tenth of its standard errors in ``z``, clipped to
+        ``[1e-5, 0.5]``; ``1e-3`` where a standard error is not finite); by default
+        :func:`matfit.fitting.fit` is run first. With ``noise="fit"`` the walkers' ``log s``
+        starts at the best value of a profile of the log-probability over ``log s`` at
+        ``start.z``.
+    seed : int, default 0
+        Seed of the starting ball and of emcee's random state.
+    progress : bool, default True
         emcee's progress bar (tqdm) for every chunk.
-    chunk : int
-        Minimum number of steps per chunk.
-    burn_factor : float
-        The burn-in is at least ``burn_factor`` autocorrelation times.
+    chunk : int, default 200
+        Minimum number of steps per chunk, at least 10.
+    burn_factor : float, default 5
+        The burn-in is at least ``burn_factor`` autocorrelation times (``>= 0``).
     thin : int, optional
-        Thinning of the stored chain; default ``max(1, floor(min(tau) / 2))``.
+        Thinning of the stored chain; default ``max(1, floor(min(tau) / 2))``; at most half the
+        production steps.
     noise_floor : float, optional
-        Absolute floor of the relative noise model (``noise="fit"`` only).
-    dtype : JAX float dtype of the computation (default: JAX's default float).
+        Absolute floor of the relative noise model (``noise="fit"`` only; see
+        :func:`make_log_prob` for the default).
+    dtype : dtype, optional
+        JAX float dtype of the computation (default: JAX's default float).
 
     Returns
     -------
     PosteriorResult
+        The thinned production chain and its summaries, in natural units.
+
+    Raises
+    ------
+    matfit.errors.ParameterError
+        When an argument is invalid (see also :func:`make_log_prob`), or ``start`` is not a
+        :class:`~matfit.fitting.FitResult` of ``model`` with the same free parameters.
+    SamplingError
+        When no finite log-probability is found near the start.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit import Table
+    >>> from matfit.fitting import fit, sample_posterior
+    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
+    >>> table = Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1), sigma=np.full((3, 3), 0.01))
+    >>> start = fit(table, model="lambert", starts=1)  # without it, sample_posterior runs fit itself
+    >>> post = sample_posterior(table, model="lambert", start=start, max_steps=200, chunk=50, tau_factor=10,
+    ...                         progress=False)
+    >>> post.labels, post.n_walkers, post.burn_in + post.n_steps <= 200
+    (['albedo[0]', 'albedo[1]', 'albedo[2]'], 12, True)
+    >>> bool(np.all(abs(post.median - np.pi * 0.1) < 3 * post.std))  # the albedo of f = 0.1
+    True
     """
     import emcee
 

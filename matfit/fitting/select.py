@@ -41,10 +41,37 @@ DEFAULT_TOL = 0.02
 class ModelComparison:
     """The outcome of :func:`compare_models`.
 
-    ``rows``: one dict per family (``model``, ``p``, ``n``, ``rss``, ``aic``, ``bic``, ``holdout_rmse``,
-    ``holdout_rmse_raw``, ``objective``, ``converged``, ``seconds``, ``error`` when the fit failed);
-    ``recommended``: the family chosen; ``best``: the family with the lowest hold-out RMSE;
-    ``results``: the FitResult per family (fitted to the fit part).
+    Attributes
+    ----------
+    rows : list of dict
+        One dict per family, in the order of ``models``: ``model``, ``p``, ``n``, ``rss``,
+        ``aic``, ``bic``, ``holdout_rmse``, ``holdout_rmse_raw``, ``objective``, ``converged``,
+        ``seconds`` (see the module docstring); a family whose fit failed has only ``model``,
+        ``error`` (the message) and ``seconds``.
+    recommended : str or None
+        The family chosen (:func:`recommend`); None when every fit failed.
+    best : str or None
+        The family with the lowest hold-out RMSE.
+    tol : float
+        Relative hold-out tolerance of the recommendation.
+    n_fit, n_holdout : int
+        Rows in the fit part and in the hold-out part of the split.
+    results : dict, default {}
+        The :class:`~matfit.fitting.FitResult` per family (fitted to the fit part); failed
+        families are missing.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit import Table
+    >>> from matfit.fitting import compare_models
+    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8], [0.8, 0.0, 0.6]])
+    >>> table = Table(wo=wo, wi=wo[[1, 2, 3, 0]], values=np.full((4, 3), 0.1))  # a Lambertian table
+    >>> cmp = compare_models(table, models=("lambert",), starts=1)
+    >>> cmp.recommended, cmp.best, cmp.n_fit, cmp.n_holdout
+    ('lambert', 'lambert', 3, 1)
+    >>> sorted(cmp.results)
+    ['lambert']
     """
 
     rows: list
@@ -56,6 +83,29 @@ class ModelComparison:
     results: dict = field(default_factory=dict, repr=False)
 
     def summary(self) -> str:
+        """A text table of the comparison: one line per family and the recommendation.
+
+        Returns
+        -------
+        str
+            A header line (rows, tolerance), a column header, one line per family (``p``, AIC,
+            BIC, hold-out RMSE in the fit's loss and in 1/sr, the recommended one marked; or the
+            error of a failed fit) and a last line with the recommended and the best family.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from matfit import Table
+        >>> from matfit.fitting import compare_models
+        >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8], [0.8, 0.0, 0.6]])
+        >>> table = Table(wo=wo, wi=wo[[1, 2, 3, 0]], values=np.full((4, 3), 0.1))  # a Lambertian table
+        >>> cmp = compare_models(table, models=("lambert",), starts=1)
+        >>> lines = cmp.summary().splitlines()
+        >>> lines[0]
+        'model comparison: 3 fit rows, 1 hold-out rows, tolerance 2%'
+        >>> lines[2].split()[:2], lines[2].endswith("<- recommended"), lines[-1]
+        (['lambert', '3'], True, '  recommended: lambert (best hold-out: lambert)')
+        """
         lines = [f"model comparison: {self.n_fit} fit rows, {self.n_holdout} hold-out rows, tolerance {self.tol:.0%}",
                  f"  {'model':20s} {'p':>3s} {'AIC':>11s} {'BIC':>11s} {'hold-out RMSE':>13s} {'raw (1/sr)':>11s}"]
         for r in self.rows:
@@ -69,12 +119,46 @@ class ModelComparison:
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
+        """The comparison as JSON-serializable data (without the fit results).
+
+        Returns
+        -------
+        dict
+            ``rows``, ``recommended``, ``best``, ``tol``, ``n_fit`` and ``n_holdout``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from matfit import Table
+        >>> from matfit.fitting import compare_models
+        >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8], [0.8, 0.0, 0.6]])
+        >>> table = Table(wo=wo, wi=wo[[1, 2, 3, 0]], values=np.full((4, 3), 0.1))  # a Lambertian table
+        >>> cmp = compare_models(table, models=("lambert",), starts=1)
+        >>> import json
+        >>> d = json.loads(json.dumps(cmp.to_dict()))
+        >>> sorted(d), d["rows"][0]["model"], d["rows"][0]["p"]
+        (['best', 'n_fit', 'n_holdout', 'recommended', 'rows', 'tol'], 'lambert', 3)
+        """
         return {"rows": self.rows, "recommended": self.recommended, "best": self.best, "tol": self.tol,
                 "n_fit": self.n_fit, "n_holdout": self.n_holdout}
 
 
 def recommend(rows, tol=DEFAULT_TOL):
     """``(recommended, best)`` family names from comparison rows (see the module docstring).
+
+    Parameters
+    ----------
+    rows : list of dict
+        Comparison rows with ``model``, ``p`` and ``holdout_rmse``; rows with an ``error`` or a
+        non-finite ``holdout_rmse`` are left out.
+    tol : float, default :data:`DEFAULT_TOL`
+        Relative hold-out tolerance: the families within ``best * (1 + tol)`` are candidates.
+
+    Returns
+    -------
+    recommended, best : str or None
+        The candidate with the fewest free parameters (ties: the first row) and the family with
+        the lowest hold-out RMSE (ties: the first row); ``(None, None)`` when no row is usable.
 
     Examples
     --------
@@ -85,6 +169,8 @@ def recommend(rows, tol=DEFAULT_TOL):
     ('lambert', 'plastic')
     >>> recommend(rows, tol=0.001)
     ('plastic', 'plastic')
+    >>> recommend([{"model": "plastic", "error": "did not converge"}])
+    (None, None)
     """
     ok = [(i, r) for i, r in enumerate(rows) if not r.get("error") and math.isfinite(r.get("holdout_rmse", math.nan))]
     if not ok:
@@ -104,6 +190,44 @@ def robust_fit(table, model, init=None, fixed=None, tied=(), **fit_kwargs):
     compiled solver, so the second costs only its iterations. This guards against the data-driven
     guess landing in a poor basin (e.g. a conductor's ``k`` at its bound when a sparse table makes
     the peak look wide).
+
+    Parameters
+    ----------
+    table : matfit.Table
+        The measurements.
+    model : str
+        Family name (see :data:`matfit.fitting.FAMILIES`).
+    init : dict, optional
+        Starting values of the first start (default: :func:`~matfit.fitting.initial_guess`).
+    fixed : dict, optional
+        Parameters held at given values.
+    tied : sequence of str, default ()
+        Per-channel parameters shared by all channels.
+    **fit_kwargs
+        Passed to :func:`~matfit.fitting.fit` (``method``, ``loss``, ``starts``, ...).
+
+    Returns
+    -------
+    matfit.fitting.FitResult
+        The fit of lower objective (the first on a tie); a start whose fit raises
+        :class:`~matfit.fitting.FitError` is skipped.
+
+    Raises
+    ------
+    matfit.errors.ParameterError
+        When ``table`` is not a :class:`~matfit.Table` or ``init`` does not fit the family.
+    matfit.fitting.FitError
+        The last start's error, when both starts fail.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit import Table
+    >>> from matfit.fitting import robust_fit
+    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
+    >>> r = robust_fit(Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1)), "lambert", starts=1)
+    >>> np.round(np.asarray(r.params["albedo"], float), 4)  # pi * 0.1
+    array([0.3142, 0.3142, 0.3142])
     """
     if not isinstance(table, Table):
         raise ParameterError(f"robust_fit: table must be a matfit.Table, got {type(table).__name__}")
@@ -145,23 +269,53 @@ def compare_models(table, models=("lambert", "conductor", "plastic"), holdout=0.
                    **fit_kwargs) -> ModelComparison:
     """Fit each family in ``models`` on a random ``1 - holdout`` of the rows and compare them.
 
+    Every family is fitted with :func:`robust_fit`; a family whose fit raises
+    :class:`~matfit.fitting.FitError` gets a row with the error and no result.
+
     Parameters
     ----------
     table : matfit.Table
-    models : sequence of family names (see :data:`matfit.fitting.FAMILIES`)
-    holdout : float in (0, 1)
-        Fraction of the rows held out (``Table.split(1 - holdout, seed)``).
-    seed : int
+        The measurements.
+    models : sequence of str or str, default ("lambert", "conductor", "plastic")
+        Family names (see :data:`matfit.fitting.FAMILIES`), distinct; a string is split at
+        commas.
+    holdout : float, default 0.2
+        Fraction of the rows held out (``Table.split(1 - holdout, seed)``), in (0, 1).
+    seed : int, default 0
         Seed of the split.
-    tol : float
-        Relative hold-out tolerance of the recommendation (default 0.02).
+    tol : float, default 0.02
+        Relative hold-out tolerance of the recommendation (``>= 0``).
     **fit_kwargs
         Passed to :func:`matfit.fitting.fit` (``method``, ``loss``, ``starts``, ``fixed`` ...; a
-        ``fixed`` that names a parameter a family lacks is applied to the families that have it).
+        ``fixed``, ``tied`` or ``init`` that names a parameter a family lacks is applied to the
+        families that have it).
 
     Returns
     -------
     ModelComparison
+        The rows, the recommendation and the fits.
+
+    Raises
+    ------
+    matfit.errors.ParameterError
+        When ``table`` is not a :class:`~matfit.Table`, ``models`` is empty, repeats or names
+        an unknown family, or ``holdout`` or ``tol`` is out of range.
+    matfit.fitting.FitError
+        When the split leaves no valid row in the fit part or in the hold-out part.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit import Table
+    >>> from matfit.fitting import compare_models
+    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8], [0.8, 0.0, 0.6]])
+    >>> table = Table(wo=wo, wi=wo[[1, 2, 3, 0]], values=np.full((4, 3), 0.1))  # a Lambertian table
+    >>> cmp = compare_models(table, models=("lambert",), starts=1)
+    >>> row = cmp.rows[0]
+    >>> row["model"], row["p"], row["n"], cmp.recommended  # 3 albedos, 3 rows x 3 channels
+    ('lambert', 3, 9, 'lambert')
+    >>> bool(row["holdout_rmse_raw"] < 1e-6)  # the family explains the held-out row
+    True
     """
     if not isinstance(table, Table):
         raise ParameterError(f"compare_models: table must be a matfit.Table, got {type(table).__name__}")
