@@ -35,7 +35,23 @@ def available_memory():
 
 
 def memory_estimate(rows, channels, groups, dtype=None):
-    """Estimated peak working memory (bytes) of :func:`fit` on a table of ``rows`` rows.
+    """Estimated peak working memory (bytes) of :func:`~matfit.fitting.fit` on a table.
+
+    Parameters
+    ----------
+    rows : int
+        Rows with a nonzero weight.
+    channels : int
+        Colour channels.
+    groups : int
+        Column groups of the Jacobian (parameter names; :func:`~matfit.fitting.lm.column_groups`).
+    dtype : dtype, optional
+        The fit's floating type (default: JAX's default float).
+
+    Returns
+    -------
+    int
+        Bytes: :data:`BYTES_PER_ROW` per row, value and value-and-group, times the float size.
 
     Examples
     --------

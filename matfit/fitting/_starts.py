@@ -210,9 +210,45 @@ def candidates(par, base, n_extra, seed):
 
 
 def fit_starts(table, par, n, seed, objective, arrays, init=None):
-    """The ``n`` starts (n, p) that :func:`fit` runs: the data-driven guess (with ``init``'s values
-    replacing its entries), then the best screened candidates (:func:`screened_starts`).
-    ``objective(zs, arrays)`` is the fit's objective for a stack of ``z``."""
+    """The ``n`` starts that :func:`~matfit.fitting.fit` runs: the data-driven guess (with
+    ``init``'s values replacing its entries), then the best screened candidates
+    (:func:`screened_starts`).
+
+    Parameters
+    ----------
+    table : matfit.Table
+        The table.
+    par : Parametrization
+        The family, channels and fixed parameters.
+    n : int
+        Number of starts.
+    seed : int
+        Seed of the candidates.
+    objective : callable
+        ``objective(zs, arrays)``: the fit's objective for a stack of ``z``.
+    arrays : tuple
+        The table's ``(wo, wi, values, weight)`` as JAX arrays.
+    init : mapping, optional
+        Values replacing entries of the data-driven guess.
+
+    Returns
+    -------
+    jax.Array (n, p)
+        Unconstrained starts, the data-driven one first.
+
+    Examples
+    --------
+    >>> import jax, numpy as np
+    >>> from matfit import Table
+    >>> from matfit.fitting import Parametrization
+    >>> from matfit.fitting.fit import fit_starts
+    >>> from matfit.fitting._residuals import objective_fn, prepared_residual_fn, table_arrays
+    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
+    >>> t = Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1)); par = Parametrization("lambert", 3)
+    >>> obj = jax.jit(objective_fn(*prepared_residual_fn(par, "l2", None, 1.0)))
+    >>> fit_starts(t, par, 3, 0, obj, table_arrays(t, None)).shape
+    (3, 3)
+    """
     g = initial_guess(table, par)
     if init is not None:
         g.update(init)

@@ -34,6 +34,8 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ["IDENT_RCOND", "BOUND_TOL", "OUTLIER_Z", "identifiability", "diagnose"]
+
 #: relative eigenvalue of the scaled J^T J below which a direction counts as unidentified
 IDENT_RCOND = 1e-10
 #: distance to a bound, relative to the parameter's range (or to 1 for unbounded ranges)

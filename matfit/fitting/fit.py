@@ -39,9 +39,7 @@ from .methods import DEFAULT_METHOD, METHODS, get_method
 from .params import Parametrization, check_solver_options
 
 __all__ = ["fit", "fit_batch", "fit_arrays", "FitResult", "FitError", "BatchFit", "initial_guess", "initial_guesses",
-           "guesses_from_arrays", "fit_starts", "prepared_residual_fn", "split_residual_fn", "objective_fn",
-           "residual_fn", "by_channel", "table_arrays", "available_memory", "memory_estimate", "check_memory",
-           "SCREEN_PER_START"]
+           "guesses_from_arrays", "fit_starts", "memory_estimate", "SCREEN_PER_START"]
 
 
 def fit(table, model="plastic", method=DEFAULT_METHOD, loss="l2", robust=None, robust_scale=1.0, fixed=None, tied=(),

@@ -98,12 +98,30 @@ SMALL_TABLE = 4096
 
 
 def column_groups(par):
-    """Seeds and channel masks of the grouped Jacobian for a :class:`Parametrization`.
+    """Seeds and channel masks of the grouped Jacobian for a :class:`~matfit.fitting.Parametrization`.
 
-    Returns ``(seeds, owner)``: ``seeds`` (G, p) has a 1 for every parameter perturbed by
-    evaluation ``g`` (one group per parameter name), ``owner`` (C, p) a 1 where parameter ``j``
-    acts on channel ``c`` (all channels for shared or tied parameters, channel ``i`` only for
-    ``name[i]``).
+    Parameters
+    ----------
+    par : Parametrization
+        The family's free parameters and channel count.
+
+    Returns
+    -------
+    seeds : numpy.ndarray (G, p)
+        A 1 for every parameter perturbed by evaluation ``g`` (one group per parameter name).
+    owner : numpy.ndarray (C, p)
+        A 1 where parameter ``j`` acts on channel ``c`` (all channels for shared or tied
+        parameters, channel ``i`` only for ``name[i]``).
+
+    Examples
+    --------
+    >>> from matfit.fitting import Parametrization
+    >>> from matfit.fitting.lm import column_groups
+    >>> seeds, owner = column_groups(Parametrization("plastic", 3))
+    >>> seeds.tolist()
+    [[1.0, 1.0, 1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 0.0, 1.0]]
+    >>> owner[1].tolist()
+    [0.0, 1.0, 0.0, 1.0, 1.0]
     """
     C, p = par.channels, par.size
     seeds, owner, i = [], np.ones((C, p)), 0
@@ -184,7 +202,24 @@ def _pairwise(xs, prod):
 
 
 def widen(x):
-    """``x`` in float64 when x64 is on (else unchanged): for moments read by covariances."""
+    """``x`` in float64 when x64 is on (else unchanged): for moments read by covariances.
+
+    Parameters
+    ----------
+    x : jax.Array
+        Any array.
+
+    Returns
+    -------
+    jax.Array
+
+    Examples
+    --------
+    >>> import jax, jax.numpy as jnp
+    >>> from matfit.fitting.lm import widen
+    >>> widen(jnp.ones(2, jnp.float32)).dtype == (jnp.float64 if jax.config.read("jax_enable_x64") else jnp.float32)
+    True
+    """
     return x.astype(jnp.promote_types(x.dtype, jnp.float64)) if jax.config.read("jax_enable_x64") else x
 
 
@@ -236,11 +271,45 @@ def _split(r):
 def normal_equations(fn, z, args, seeds, owner, central=False, r=None, F=None, wide=False):
     """``(F, J^T J, J^T r, r)`` at ``z`` for residuals ``fn(z, args)``.
 
-    The residuals are one array (N, C), or a tuple of ``C`` arrays (n,) (one per colour channel:
-    the channel-split layout of :mod:`matfit.fast`, which XLA compiles into single-output loops).
-    ``F = 0.5 |r|^2``; the Jacobian is the grouped forward (or central) difference of the module
-    docstring. ``r`` (and ``F``) may be passed when already known at ``z``. ``wide``: the
-    moments are summed in float64 (when x64 is on) and ``A``, ``g`` returned so, for covariances.
+    The Jacobian is the grouped forward (or central) difference of the module docstring, reduced
+    straight to the moments (never an ``N x p`` matrix).
+
+    Parameters
+    ----------
+    fn : callable
+        ``fn(z, args)``: one array (N, C), or a tuple of ``C`` arrays (n,) (one per colour
+        channel: the channel-split layout of :mod:`matfit.fast`, which XLA compiles into
+        single-output loops).
+    z : jax.Array (p,)
+        The point.
+    args : pytree
+        Passed through to ``fn``.
+    seeds, owner : numpy.ndarray
+        From :func:`column_groups`.
+    central : bool, default False
+        Central differences.
+    r, F : optional
+        The residuals (and ``F = 0.5 |r|^2``) at ``z`` when already known.
+    wide : bool, default False
+        Sum the moments in float64 (when x64 is on) and return ``A``, ``g`` so, for covariances.
+
+    Returns
+    -------
+    F : jax.Array
+        ``0.5 |r|^2``.
+    A, g : jax.Array (p, p), (p,)
+        ``J^T J`` and ``J^T r``.
+    r : jax.Array or tuple
+        The residuals, in ``fn``'s layout.
+
+    Examples
+    --------
+    >>> import numpy as np, jax.numpy as jnp
+    >>> from matfit.fitting.lm import normal_equations
+    >>> x = jnp.linspace(0.0, 1.0, 5)
+    >>> F, A, g, r = normal_equations(lambda z, x: (z[0] * x)[:, None], jnp.array([1.0]), x, np.eye(1), np.ones((1, 1)))
+    >>> bool(abs(A[0, 0] - 1.875) < 1e-3 and abs(g[0] - 1.875) < 1e-3)  # both sum(x^2), to rounding
+    True
     """
     r_like = r if r is not None else jax.eval_shape(fn, z, args)
     if _split(r_like):
@@ -286,8 +355,35 @@ def half_sq(r):
 
 
 def jacobian(fn, z, args, seeds, owner, central=None):
-    """``(r, J)``: residuals (N, C) and the grouped-difference Jacobian (N, C, p) at ``z``
-    (channel-split residuals are stacked to (n, C))."""
+    """The residuals and the grouped-difference Jacobian at ``z``, materialized (for tests and
+    small problems; solvers use :func:`normal_equations`).
+
+    Parameters
+    ----------
+    fn : callable
+        ``fn(z, args)``: residuals (N, C) or a tuple of C arrays (n,) (stacked to (n, C)).
+    z : jax.Array (p,)
+        The point.
+    args : pytree
+        Passed through to ``fn``.
+    seeds, owner : numpy.ndarray
+        From :func:`column_groups`.
+    central : bool, optional
+        Central differences (default: float32 only).
+
+    Returns
+    -------
+    r : jax.Array (N, C)
+    J : jax.Array (N, C, p)
+
+    Examples
+    --------
+    >>> import numpy as np, jax.numpy as jnp
+    >>> from matfit.fitting.lm import jacobian
+    >>> r, J = jacobian(lambda z, a: (z[0] * a)[:, None], jnp.array([2.0]), jnp.array([1.0, 3.0]), np.eye(1), np.ones((1, 1)))
+    >>> J.shape, [round(float(v), 4) for v in J[:, 0, 0]]
+    ((2, 1, 1), [1.0, 3.0])
+    """
     central = (z.dtype == jnp.float32) if central is None else bool(central)
     if _split(jax.eval_shape(fn, z, args)):
         fn = _stacked(fn)
@@ -402,10 +498,33 @@ def _extrapolated(fn, args, s, delta, z_new, r_new, F_new, try_it, cap):
 
 
 class LMResult(NamedTuple):
-    """What :func:`lm_fd` returns: the solution ``z``, ``F = 0.5 |r|^2`` there, the number of
-    accepted ``steps``, whether a stopping test (not ``max_steps``) ended the loop
-    (``converged``), ``A = J^T J`` at ``z`` (for covariances), the number of model ``evals`` and
-    the residuals ``r`` at ``z`` (in ``fn``'s layout)."""
+    """What :func:`lm_fd` returns.
+
+    Attributes
+    ----------
+    z : jax.Array (p,)
+        The solution.
+    F : jax.Array
+        ``0.5 |r|^2`` there.
+    steps : jax.Array
+        Accepted steps.
+    converged : jax.Array of bool
+        Whether a stopping test (not ``max_steps``) ended the loop.
+    A : jax.Array (p, p)
+        ``J^T J`` at ``z`` (for covariances).
+    evals : jax.Array
+        Model evaluations.
+    r : jax.Array or tuple
+        The residuals at ``z``, in ``fn``'s layout.
+
+    Examples
+    --------
+    >>> import numpy as np, jax.numpy as jnp
+    >>> from matfit.fitting.lm import lm_fd
+    >>> res = lm_fd(lambda z, a: (z - a)[None, :], jnp.zeros(1), jnp.ones(1), np.eye(1), np.ones((1, 1)))
+    >>> sorted(res._fields)[:3], float(res.F) < 1e-12
+    (['A', 'F', 'converged'], True)
+    """
 
     z: jax.Array
     F: jax.Array

@@ -32,6 +32,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+__all__ = ["LOSSES", "ROBUST", "REL_EPS", "check_loss", "residuals", "prepare_targets", "residuals_from_targets"]
+
 from .._math import safe_sqrt
 from ..errors import ParameterError
 

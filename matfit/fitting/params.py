@@ -21,6 +21,8 @@ from ..errors import ParameterError
 from ._conductor_guess import refine_conductor
 from ..models import CoatedConductor, DiffuseSpecular, Lambert, Plastic, RoughConductor, RoughDielectric
 
+__all__ = ["Param", "TruthMap", "Family", "FAMILIES", "family_describing", "get_family", "check_solver_options", "Parametrization"]
+
 
 @dataclass(frozen=True)
 class Param:
@@ -383,10 +385,39 @@ def _real(owner, name, v, positive=False):
         raise ParameterError(f"{owner}: {name} must be a finite number {'> 0' if positive else '>= 0'}, got {v!r}")
 
 
-def check_solver_options(owner, *, starts=1, max_steps=1, rtol=0.0, atol=0.0, robust_scale=1.0, dtype=None):
+def check_solver_options(owner, *, starts=1, max_steps=1, rtol=0.0, atol=0.0, robust_scale=1.0, dtype=None) -> None:
     """Validate the solver options shared by :func:`~matfit.fitting.fit` and
     :func:`~matfit.fitting.fit_batch`: counts are integers >= 1, tolerances finite and >= 0,
-    ``robust_scale`` finite and > 0, ``dtype`` None or a floating dtype."""
+    ``robust_scale`` finite and > 0, ``dtype`` None or a floating dtype.
+
+    Parameters
+    ----------
+    owner : str
+        The caller, named in errors.
+    starts, max_steps : int
+        Counts (>= 1).
+    rtol, atol : float
+        Tolerances (finite, >= 0).
+    robust_scale : float
+        Scale of a robust loss (finite, > 0).
+    dtype : dtype, optional
+        float32 or float64.
+
+    Raises
+    ------
+    matfit.ParameterError
+        Naming the option and the value.
+
+    Examples
+    --------
+    >>> from matfit.fitting.params import check_solver_options
+    >>> check_solver_options("fit", starts=2, max_steps=10)
+    >>> try:
+    ...     check_solver_options("fit", starts=0)
+    ... except Exception as e:
+    ...     print(e)
+    fit: starts must be an integer >= 1, got 0
+    """
     _count(owner, "starts", starts, 1)
     _count(owner, "max_steps", max_steps, 1)
     _real(owner, "rtol", rtol)
