@@ -5,11 +5,30 @@ parts are attributes of the exception (``file``, ``key``, ``expected``, ``found`
 """
 from __future__ import annotations
 
-from matfit.errors import MatfitError
+from matfit.errors import MatfitError, problem_message
 
 
 class SceneError(MatfitError):
-    """Base class of scene-file errors."""
+    """Base class of scene-file errors.
+
+    Parameters
+    ----------
+    file : str or PathLike, optional
+        The scene file.
+    key : str, optional
+        The dotted key that is wrong (``"material.alpha"``).
+    expected, found : object, optional
+        What the scene format requires, and what the file holds.
+    detail : str, optional
+        More about the problem, in parentheses at the end.
+
+    Examples
+    --------
+    >>> from data_synth.errors import SceneError
+    >>> e = SceneError("a.toml", "geometry.n", "an integer >= 1", "0")
+    >>> str(e), e.key
+    ("a.toml: key 'geometry.n': expected an integer >= 1, found 0", 'geometry.n')
+    """
 
     def __init__(self, file=None, key=None, expected=None, found=None, detail=None):
         self.file = None if file is None else str(file)
@@ -17,20 +36,7 @@ class SceneError(MatfitError):
         self.expected = expected
         self.found = found
         self.detail = detail
-        msg = ""
-        if self.file is not None:
-            msg += f"{self.file}: "
-        if key is not None:
-            msg += f"key '{key}'"
-        parts = []
-        if expected is not None:
-            parts.append(f"expected {expected}")
-        if found is not None:
-            parts.append(f"found {found}")
-        if parts:
-            msg += (": " if key is not None else "") + ", ".join(parts)
-        if detail:
-            msg += f" ({detail})"
+        msg = problem_message(key, expected, found, file=self.file, detail=detail, kind="key")
         super().__init__(" ".join(msg.split("\n")))
 
 

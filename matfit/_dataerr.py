@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import os
 
-from .errors import DataFormatError
+from .errors import DataFormatError, problem_message
 
 
 def _describe_file(file) -> str | None:
@@ -20,21 +20,33 @@ def _describe_file(file) -> str | None:
 
 
 def data_error(field: str, expected=None, found=None, *, file=None, detail: str | None = None) -> DataFormatError:
-    """Return (not raise) a DataFormatError naming the file, the field, expected vs found."""
+    """Return (not raise) a DataFormatError naming the file, the field, expected vs found.
+
+    Parameters
+    ----------
+    field : str
+        The field, header line or column that is wrong.
+    expected, found : object, optional
+        What the format requires and what the file holds.
+    file : str, PathLike or bytes, optional
+        The file; data given as bytes is named ``"<bytes>"``.
+    detail : str, optional
+        Where in the file, or more about the problem.
+
+    Returns
+    -------
+    DataFormatError
+        With the message of :func:`matfit.errors.problem_message` and its parts as the
+        attributes ``file``, ``field``, ``expected``, ``found`` and ``detail``.
+
+    Examples
+    --------
+    >>> e = data_error("dims", "(90, 90, 180)", "(1, 2, 3)", file=b"...")
+    >>> str(e), e.file, e.field
+    ("<bytes>: field 'dims': expected (90, 90, 180), found (1, 2, 3)", '<bytes>', 'dims')
+    """
     fname = _describe_file(file)
-    msg = f"field '{field}'"
-    if fname is not None:
-        msg = f"{fname}: {msg}"
-    parts = []
-    if expected is not None:
-        parts.append(f"expected {expected}")
-    if found is not None:
-        parts.append(f"found {found}")
-    if parts:
-        msg += ": " + ", ".join(parts)
-    if detail:
-        msg += f" ({detail})"
-    err = DataFormatError(msg)
+    err = DataFormatError(problem_message(field, expected, found, file=fname, detail=detail))
     err.file = fname
     err.field = field
     err.expected = expected
@@ -44,7 +56,26 @@ def data_error(field: str, expected=None, found=None, *, file=None, detail: str 
 
 
 def with_file(err: DataFormatError, file) -> DataFormatError:
-    """Re-issue a file-less DataFormatError (e.g. from Table validation) with the file named."""
+    """Re-issue a file-less DataFormatError (e.g. from Table validation) with the file named.
+
+    Parameters
+    ----------
+    err : DataFormatError
+        The error; returned as it is when it already names a file.
+    file : str, PathLike or bytes, optional
+        The file to name; ``err`` is returned as it is when None.
+
+    Returns
+    -------
+    DataFormatError
+        An error naming ``file``; an error not built by :func:`data_error` becomes the detail
+        of a field ``'?'``.
+
+    Examples
+    --------
+    >>> str(with_file(data_error("wo", "unit vectors"), "t.csv"))
+    "t.csv: field 'wo': expected unit vectors"
+    """
     if getattr(err, "file", None) is not None or file is None:
         return err
     return data_error(getattr(err, "field", "?"), getattr(err, "expected", None), getattr(err, "found", None),

@@ -1,9 +1,9 @@
 """Compile once per machine: JAX's persistent compilation cache for matfit.
 
-XLA compiles every solver and kernel the first time a process calls it; a rough-coated family's
-fit takes seconds to compile and evaluates in a fraction of a second. With the persistent cache
-the compiled executables are written to disk and a later process with the same program (same
-family, method, loss, dtype and table shape) loads them instead of compiling again.
+XLA compiles every solver and kernel the first time a process calls it, and for a short fit the
+compilation is most of the work. With the persistent cache the compiled executables are written
+to disk and a later process with the same program (same family, method, loss, dtype and table
+shape) loads them instead of compiling again.
 
 The command line (``matfit ...``) and the demo switch it on. Library users call
 :func:`enable_compilation_cache` once, before their first fit:
@@ -30,6 +30,13 @@ MIN_COMPILE_SECONDS = 0.05
 
 def cache_dir() -> Path | None:
     """The folder of the persistent compilation cache, or None when ``MATFIT_NO_CACHE`` is set.
+
+    Returns
+    -------
+    Path or None
+        ``$MATFIT_CACHE_DIR`` when set, else ``$XDG_CACHE_HOME/matfit/jax`` (default
+        ``~/.cache/matfit/jax``); None when ``MATFIT_NO_CACHE`` is set to anything but ``0``.
+        The folder is not created.
 
     Examples
     --------

@@ -55,15 +55,28 @@ def use_host_devices(n: int | None = None) -> int:
     ``XLA_FLAGS=--xla_force_host_platform_device_count=n`` in the environment before Python
     starts. Has no effect on GPU backends (every GPU already is a device).
 
-    Returns the number requested. Raises :class:`matfit.errors.MatfitError` when the backend has
-    already started with a different count.
+    Parameters
+    ----------
+    n : int, optional
+        Host devices, >= 1 (default: ``os.cpu_count()``).
+
+    Returns
+    -------
+    int
+        The number requested.
+
+    Raises
+    ------
+    MatfitError
+        ``n < 1``, or the backend has already started with a different count.
 
     Examples
     --------
     >>> from matfit.parallel import use_host_devices
     >>> import jax
-    >>> use_host_devices(len(jax.devices("cpu")))  # no-op once started with that count
-    1
+    >>> n = len(jax.devices("cpu"))
+    >>> use_host_devices(n) == n  # no-op once started with that count
+    True
     """
     n = int(n if n is not None else (os.cpu_count() or 1))
     if n < 1:
@@ -99,15 +112,35 @@ def use_cores(n: int) -> int:
     (``benchmarks/bench_emcee.py --cores 1``, ``docs/performance.md``). Large tables lose: a full
     MERL fit's loops run on one core instead of two.
 
-    Returns the number of cores the process may now use. Raises
-    :class:`matfit.errors.MatfitError` when JAX's backend has already started or the platform
-    cannot set an affinity.
+    Parameters
+    ----------
+    n : int
+        Cores, >= 1: the first ``n`` of those the process may use now.
+
+    Returns
+    -------
+    int
+        The number of cores the process may now use.
+
+    Raises
+    ------
+    MatfitError
+        ``n < 1``, JAX's backend has already started, or the platform cannot set an affinity.
 
     Examples
     --------
+    At the start of a script, before any JAX computation, ``use_cores(1)`` returns 1. Later
+    it refuses, as the thread pool is already sized:
+
+    >>> import jax
+    >>> from matfit.errors import MatfitError
     >>> from matfit.parallel import use_cores
-    >>> use_cores(1)  # doctest: +SKIP
-    1
+    >>> _ = jax.devices()               # starts the backend
+    >>> try:
+    ...     use_cores(1)
+    ... except MatfitError as e:
+    ...     print(str(e).split(":")[0])
+    use_cores(1)
     """
     n = int(n)
     if n < 1:
@@ -139,15 +172,36 @@ def for_small_calls(cores: int | None = 1) -> int:
     Must run before JAX starts its backend (before the first array is created or
     ``jax.devices()`` is called); importing jax or matfit first is fine.
 
-    Returns the number of cores the process may use. Raises :class:`matfit.errors.MatfitError`
-    when the backend has already started (or, with ``cores``, the platform cannot set an
-    affinity).
+    Parameters
+    ----------
+    cores : int or None, default 1
+        Cores to keep (:func:`use_cores`), or None for all.
+
+    Returns
+    -------
+    int
+        The number of cores the process may use.
+
+    Raises
+    ------
+    MatfitError
+        The backend has already started (or, with ``cores``, the platform cannot set an
+        affinity).
 
     Examples
     --------
+    At the start of a script, ``for_small_calls()`` returns 1. Once JAX has computed anything
+    it refuses:
+
+    >>> import jax
+    >>> from matfit.errors import MatfitError
     >>> from matfit.parallel import for_small_calls
-    >>> for_small_calls()  # doctest: +SKIP
-    1
+    >>> _ = jax.devices()
+    >>> try:
+    ...     for_small_calls(None)
+    ... except MatfitError as e:
+    ...     print(str(e).split(":")[0])
+    for_small_calls
     """
     if _backend_started() is not False:
         raise MatfitError("for_small_calls: the JAX backend already started (or this JAX version cannot tell): its "
@@ -165,17 +219,73 @@ def _devices(devices=None):
 
 
 def device_count(devices=None) -> int:
-    """Number of devices a batch is split over (default: all devices of the default backend)."""
+    """Number of devices a batch is split over (default: all devices of the default backend).
+
+    Parameters
+    ----------
+    devices : sequence of jax devices, optional
+        The devices to count (default ``jax.devices()``).
+
+    Returns
+    -------
+    int
+        The number of blocks :func:`shard_batch` splits a batch into.
+
+    Examples
+    --------
+    >>> import jax
+    >>> from matfit.parallel import device_count
+    >>> device_count() == len(jax.devices()), device_count(jax.devices()[:1])
+    (True, 1)
+    """
     return len(_devices(devices))
 
 
 def batch_mesh(devices=None) -> Mesh:
-    """A one-axis mesh (:data:`BATCH_AXIS`) over ``devices`` (default: all of the default backend)."""
+    """A one-axis mesh (:data:`BATCH_AXIS`) over ``devices`` (default: all of the default backend).
+
+    Parameters
+    ----------
+    devices : sequence of jax devices, optional
+        The mesh's devices, in order (default ``jax.devices()``).
+
+    Returns
+    -------
+    jax.sharding.Mesh
+        One axis, :data:`BATCH_AXIS`, of ``len(devices)`` devices.
+
+    Examples
+    --------
+    >>> import jax
+    >>> from matfit.parallel import batch_mesh
+    >>> mesh = batch_mesh(jax.devices()[:1])
+    >>> mesh.axis_names, mesh.devices.shape
+    (('batch',), (1,))
+    """
     return Mesh(np.array(_devices(devices)), (BATCH_AXIS,))
 
 
 def batch_sharding(devices=None) -> NamedSharding:
-    """Sharding that splits the first axis of an array into one block per device."""
+    """Sharding that splits the first axis of an array into one block per device.
+
+    Parameters
+    ----------
+    devices : sequence of jax devices, optional
+        The devices holding the blocks, block ``k`` on ``devices[k]`` (default ``jax.devices()``).
+
+    Returns
+    -------
+    jax.sharding.NamedSharding
+        Over :func:`batch_mesh`, the first axis along :data:`BATCH_AXIS`.
+
+    Examples
+    --------
+    >>> import jax, jax.numpy as jnp
+    >>> from matfit.parallel import batch_sharding
+    >>> x = jax.device_put(jnp.zeros((4, 3)), batch_sharding(jax.devices()[:1]))
+    >>> tuple(x.sharding.spec), x.addressable_shards[0].data.shape
+    (('batch',), (4, 3))
+    """
     return NamedSharding(batch_mesh(devices), PartitionSpec(BATCH_AXIS))
 
 
@@ -194,9 +304,23 @@ def shard_batch(tree, devices=None, fill=None):
 
     Returns
     -------
-    (sharded_tree, n)
-        The padded, sharded arrays and the original length ``n``: results computed from them
-        are valid in ``[:n]``.
+    sharded_tree : pytree of jax.Array
+        The padded arrays, placed with :func:`batch_sharding`.
+    n : int
+        The original length: results computed from them are valid in ``[:n]``.
+
+    Raises
+    ------
+    MatfitError
+        No arrays, an empty batch, or leaves of different first-axis lengths.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit.parallel import device_count, shard_batch
+    >>> (x, valid), n = shard_batch((np.arange(3.0), np.ones(3, bool)), fill=(0.0, False))
+    >>> n, x.shape[0] % device_count(), x[:n].tolist(), bool(valid[:n].all() and not valid[n:].any())
+    (3, 0, [0.0, 1.0, 2.0], True)
     """
     leaves, treedef = jax.tree_util.tree_flatten(tree)
     if not leaves:

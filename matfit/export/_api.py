@@ -5,6 +5,9 @@ from __future__ import annotations
 from ..errors import ParameterError
 from . import _mitsuba
 from ._fidelity import fit_target, measure
+from ._gltf import to_gltf
+from ._materialx import to_materialx
+from ._pbrt import to_pbrt
 from ._result import ExportResult, ParamMapping, check_model
 
 
@@ -21,11 +24,19 @@ def to_mitsuba(model) -> ExportResult:
     Parameters
     ----------
     model : matfit.models.AbstractBSDF
+        Lambert, the conductors, the dielectrics, Plastic and Blend map to Mitsuba's plugins
+        one to one; Layered and the other models without a plugin are written as a
+        ``blendbsdf`` of two ``roughconductor`` lobes fitted to them over the hemisphere.
 
     Returns
     -------
     ExportResult
         ``content`` is the dict (``mitsuba.load_dict(result.content)`` loads it).
+
+    Raises
+    ------
+    ParameterError
+        ``model`` is not a matfit model, or has neither a plugin nor an approximation.
 
     Examples
     --------
@@ -52,6 +63,17 @@ def to_mitsuba(model) -> ExportResult:
 def to_mitsuba_xml(model) -> ExportResult:
     """:func:`to_mitsuba` as Mitsuba scene XML (a ``<bsdf>`` element).
 
+    Parameters
+    ----------
+    model : matfit.models.AbstractBSDF
+        As for :func:`to_mitsuba`.
+
+    Returns
+    -------
+    ExportResult
+        ``content`` is the XML text, the ``<bsdf>`` with ``id="matfit"``; mapping, model and
+        fidelity are those of :func:`to_mitsuba`.
+
     Examples
     --------
     >>> from matfit.models import Lambert
@@ -64,24 +86,6 @@ def to_mitsuba_xml(model) -> ExportResult:
     return ExportResult("mitsuba-xml", _mitsuba.to_xml(r.content, 0, "matfit"), r.mapping, r.model, r.fidelity, r.notes)
 
 
-def to_pbrt(model) -> ExportResult:
-    from ._pbrt import to_pbrt as f
-
-    return f(model)
-
-
-def to_gltf(model) -> ExportResult:
-    from ._gltf import to_gltf as f
-
-    return f(model)
-
-
-def to_materialx(model) -> ExportResult:
-    from ._materialx import to_materialx as f
-
-    return f(model)
-
-
 #: Target name -> exporter.
 EXPORTERS = {"mitsuba": to_mitsuba, "mitsuba-xml": to_mitsuba_xml, "pbrt": to_pbrt, "gltf": to_gltf,
              "mtlx": to_materialx}
@@ -89,6 +93,23 @@ EXPORTERS = {"mitsuba": to_mitsuba, "mitsuba-xml": to_mitsuba_xml, "pbrt": to_pb
 
 def export(model, to) -> ExportResult:
     """Export ``model`` to the target ``to`` (a key of :data:`EXPORTERS`).
+
+    Parameters
+    ----------
+    model : matfit.models.AbstractBSDF
+    to : {"mitsuba", "mitsuba-xml", "pbrt", "gltf", "mtlx"}
+        The target.
+
+    Returns
+    -------
+    ExportResult
+        What the target's exporter returns (:func:`to_mitsuba`, :func:`to_mitsuba_xml`,
+        :func:`to_pbrt`, :func:`to_gltf`, :func:`to_materialx`).
+
+    Raises
+    ------
+    ParameterError
+        An unknown target, or a model the target cannot take.
 
     Examples
     --------

@@ -23,6 +23,23 @@ N_PAIRS = 4096
 def hemisphere_pairs(model, n=N_PAIRS, seed=0):
     """``(wo, wi)`` (n, 3) float64 numpy arrays covering the upper hemisphere and ``model``'s lobes.
 
+    ``wo`` is stratified in cos(theta_o) and uniform in phi; half of the ``wi`` are uniform over
+    the hemisphere and half are drawn from ``model.sample`` (so narrow lobes are covered).
+    Every direction has cos(theta) >= 0.02.
+
+    Parameters
+    ----------
+    model : matfit.models.AbstractBSDF
+        The model whose sampler places half of the ``wi``.
+    n : int, default N_PAIRS
+        Pairs.
+    seed : int, default 0
+
+    Returns
+    -------
+    wo, wi : numpy.ndarray, (n, 3) float64
+        Unit directions.
+
     Examples
     --------
     >>> from matfit.models import Lambert
@@ -60,6 +77,25 @@ def _eval(model, wo, wi):
 def relative_rmse(source, target, n=N_PAIRS, seed=1):
     """Relative RMSE of ``target`` against ``source`` (see :class:`~matfit.export.Fidelity`).
 
+    Parameters
+    ----------
+    source, target : matfit.models.AbstractBSDF
+        The model and what stands for it.
+    n : int, default N_PAIRS
+        Pairs of :func:`hemisphere_pairs` (placed by ``source``).
+    seed : int, default 1
+        Seed of the pairs: another set than :func:`fit_target`'s default.
+
+    Returns
+    -------
+    float
+        ``sqrt(sum w (f_t - f_s)^2 / sum w f_s^2)`` with ``w = cos(theta_o) cos(theta_i)``.
+
+    Raises
+    ------
+    MatfitError
+        A model evaluates to non-finite values on the hemisphere.
+
     Examples
     --------
     >>> from matfit.models import Lambert
@@ -77,6 +113,29 @@ def relative_rmse(source, target, n=N_PAIRS, seed=1):
 def fit_target(source, family, init=None, fixed=None, n=N_PAIRS, seed=0, channels=None):
     """Fit ``family`` (a :class:`~matfit.fitting.Family` whose models are the target's BRDF) to
     ``source`` over the hemisphere with :func:`matfit.fitting.fit`; returns the fitted model.
+
+    The source is evaluated on :func:`hemisphere_pairs` and fitted with weights
+    ``cos(theta_o) cos(theta_i)`` (normalized), two starts.
+
+    Parameters
+    ----------
+    source : matfit.models.AbstractBSDF
+        The model to approximate.
+    family : matfit.fitting.Family
+        The target's BRDF as a family of matfit models.
+    init, fixed : dict, optional
+        Start values and fixed parameters, as for :func:`matfit.fitting.fit`.
+    n : int, default N_PAIRS
+        Pairs to fit on.
+    seed : int, default 0
+        Seed of the pairs.
+    channels : int, optional
+        Channels of the fit (default: the source's); a one-channel source is repeated.
+
+    Returns
+    -------
+    matfit.models.AbstractBSDF
+        The fitted model of ``family``.
 
     Examples
     --------
@@ -108,6 +167,21 @@ def measure(source, target, method="fitted", err=None):
     """The :class:`~matfit.export.Fidelity` of ``target`` standing for ``source``: the relative
     RMSE over the hemisphere and the mean CIEDE2000 of the two models' spheres rendered under the
     built-in sky (same seed, so that most of the sampling noise cancels).
+
+    Parameters
+    ----------
+    source, target : matfit.models.AbstractBSDF
+        The model and what stands for it.
+    method : {"fitted", "mapped"}, default "fitted"
+        How ``target`` was found, recorded in the result.
+    err : float, optional
+        The relative RMSE when already known (default: :func:`relative_rmse`).
+
+    Returns
+    -------
+    Fidelity
+        The relative RMSE over :data:`N_PAIRS` pairs and the mean CIEDE2000 of
+        :data:`SPHERE_SIZE` pixel spheres at :data:`SPHERE_SPP` samples per pixel.
 
     Examples
     --------

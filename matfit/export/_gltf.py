@@ -135,12 +135,19 @@ def to_gltf(model) -> ExportResult:
     Parameters
     ----------
     model : matfit.models.AbstractBSDF
+        Lambert and GltfPBR map exactly; conductors, Plastic, Layered over a conductor and
+        blends of rough reflective models are approximated by the glTF BRDF fitted to them.
 
     Returns
     -------
     ExportResult
         ``content`` is the glTF JSON as a dict (``pygltflib.GLTF2().from_dict`` reads it);
         ``model`` is the glTF BRDF as a :class:`~matfit.models.GltfPBR`.
+
+    Raises
+    ------
+    ParameterError
+        ``model`` is not a matfit model, has a Dirac lobe or transmits light.
 
     Examples
     --------

@@ -31,7 +31,19 @@ def _mx():
 
 
 def standard_library():
-    """The MaterialX standard libraries, loaded (for validating documents)."""
+    """The MaterialX standard libraries, loaded (for validating documents).
+
+    Returns
+    -------
+    MaterialX.Document
+        A document holding the standard data libraries.
+
+    Examples
+    --------
+    >>> lib = standard_library()
+    >>> lib.getNodeDef("ND_standard_surface_surfaceshader") is not None
+    True
+    """
     mx = _mx()
     lib = mx.createDocument()
     mx.loadLibraries(mx.getDefaultDataLibraryFolders(), mx.getDefaultDataSearchPath(), lib)
@@ -44,11 +56,19 @@ def to_materialx(model) -> ExportResult:
     Parameters
     ----------
     model : matfit.models.AbstractBSDF
+        Lambert maps exactly; every model :func:`~matfit.export.to_gltf` takes is written
+        through the glTF BRDF fitted to it, whose parameters ``standard_surface`` shares.
 
     Returns
     -------
     ExportResult
         ``content`` is the ``.mtlx`` XML text; the material node is ``matfit``.
+
+    Raises
+    ------
+    MatfitError
+        The ``materialx`` package is missing; a :class:`~matfit.errors.ParameterError` for a
+        model glTF cannot represent.
 
     Examples
     --------

@@ -31,6 +31,16 @@ def plain_numbers(a):
     """Python floats (nested lists for arrays) of the shortest decimal strings that read back as the same values (a float32
     0.4 is written 0.4, not 0.4000000059604645).
 
+    Parameters
+    ----------
+    a : array_like
+        Numbers of any dtype (non-floating ones are converted with ``float``).
+
+    Returns
+    -------
+    float or list
+        A float for a scalar, nested lists of floats for an array.
+
     Examples
     --------
     >>> import numpy as np
@@ -136,17 +146,34 @@ def model_from_description(d, source="model description"):
     return obj
 
 
-def save_model(path, model, **extra):
+def save_model(path, model, **extra) -> None:
     """Write ``model`` as a model document (JSON) at ``path``; ``extra`` keys are stored beside it.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The file to write (parent folders are created).
+    model : matfit.models.AbstractBSDF
+        As for :func:`describe_model`.
+    **extra
+        JSON-serializable values stored at the top level of the document beside ``model``
+        (e.g. ``family``).
+
+    Raises
+    ------
+    ParameterError
+        ``model`` cannot be described (:func:`describe_model`).
 
     Examples
     --------
-    >>> import tempfile, os
+    >>> import json, os, tempfile
     >>> from matfit.models import Lambert
-    >>> p = os.path.join(tempfile.mkdtemp(), "m.json")
-    >>> save_model(p, Lambert(0.5), family="lambert")
-    >>> type(load_model(p)).__name__
-    'Lambert'
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     save_model(os.path.join(d, "m.json"), Lambert(0.5), family="lambert")
+    ...     with open(os.path.join(d, "m.json")) as fh:
+    ...         doc = json.load(fh)
+    >>> doc["matfit_model"], doc["family"], doc["model"]["type"]
+    (1, 'lambert', 'Lambert')
     """
     doc = {"matfit_model": FORMAT_VERSION, "model": describe_model(model), **extra}
     Path(path).parent.mkdir(parents=True, exist_ok=True)
@@ -165,9 +192,21 @@ def load_model(path):
     -------
     matfit.models.AbstractBSDF
 
+    Raises
+    ------
+    DataFormatError
+        A missing file, not JSON, no ``model`` field, or a model description that does not
+        rebuild (:func:`model_from_description`).
+
     Examples
     --------
-    See :func:`save_model`.
+    >>> import os, tempfile
+    >>> from matfit.models import Lambert
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     save_model(os.path.join(d, "m.json"), Lambert([0.5, 0.4, 0.3]))
+    ...     m = load_model(os.path.join(d, "m.json"))
+    >>> type(m).__name__, [round(float(x), 6) for x in m.reflectance]
+    ('Lambert', [0.5, 0.4, 0.3])
     """
     p = Path(path)
     if not p.exists():

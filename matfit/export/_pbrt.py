@@ -159,11 +159,19 @@ def to_pbrt(model) -> ExportResult:
     Parameters
     ----------
     model : matfit.models.AbstractBSDF
+        Lambert, a conductor, a dielectric, Plastic, Layered over a RoughConductor, or a Blend
+        of those (the table in the module docstring); a conductor pbrt cannot evaluate exactly
+        is written as a height-correlated GGX conductor fitted to it.
 
     Returns
     -------
     ExportResult
         ``content`` is the text; include it in a scene and select it with ``NamedMaterial "matfit"``.
+
+    Raises
+    ------
+    ParameterError
+        ``model`` is not a matfit model or has no pbrt-v4 material.
 
     Examples
     --------

@@ -14,14 +14,51 @@ from ..models import AbstractBSDF
 from ._model_file import plain_numbers
 
 
-def check_model(owner, model):
-    """A :class:`~matfit.errors.ParameterError` naming ``owner`` unless ``model`` is a matfit model."""
+def check_model(owner, model) -> None:
+    """A :class:`~matfit.errors.ParameterError` naming ``owner`` unless ``model`` is a matfit model.
+
+    Parameters
+    ----------
+    owner : str
+        The exporter, named in the message.
+    model : object
+
+    Raises
+    ------
+    ParameterError
+        ``model`` is not a :class:`~matfit.models.AbstractBSDF`.
+
+    Examples
+    --------
+    >>> check_model("to_pbrt", "lambert")
+    Traceback (most recent call last):
+    ...
+    matfit.errors.ParameterError: to_pbrt: model must be a matfit model, got str
+    """
     if not isinstance(model, AbstractBSDF):
         raise ParameterError(f"{owner}: model must be a matfit model, got {type(model).__name__}")
 
 
 def rgb(owner, x):
-    """Three plain numbers for a colour of 1 (repeated) or 3 channels; an error naming ``owner`` else."""
+    """Three plain numbers for a colour of 1 (repeated) or 3 channels; an error naming ``owner`` else.
+
+    Parameters
+    ----------
+    owner : str
+        The exporter, named in the message.
+    x : array_like
+        A colour of 1 or 3 channels.
+
+    Returns
+    -------
+    list of float
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> rgb("to_gltf", np.float32(0.4)), rgb("to_gltf", [0.1, 0.2, 0.3])
+    ([0.4, 0.4, 0.4], [0.1, 0.2, 0.3])
+    """
     a = np.asarray(x).ravel()
     if a.size not in (1, 3):
         raise ParameterError(f"{owner}: colours have 3 channels, the model has {a.size}")
@@ -44,6 +81,13 @@ class ParamMapping:
         True when the target reproduces the model's dependence on this parameter exactly.
     note : str
         Why it is approximate, when it is.
+
+    Examples
+    --------
+    >>> from matfit.export import to_pbrt
+    >>> from matfit.models import Lambert
+    >>> to_pbrt(Lambert([0.5, 0.4, 0.3])).mapping
+    [ParamMapping(target='reflectance', value=[0.5, 0.4, 0.3], source='albedo', exact=True, note='')]
     """
 
     target: str
@@ -71,6 +115,14 @@ class Fidelity:
     ciede2000 : float or None
         Mean CIEDE2000 between spheres of the source and the target rendered under the built-in
         sky (:func:`matfit.render.render_sphere`), when measured.
+
+    Examples
+    --------
+    >>> from matfit.export import Fidelity, relative_rmse
+    >>> from matfit.models import Lambert
+    >>> f = Fidelity(relative_rmse(Lambert(0.5), Lambert(0.55)), n_pairs=4096, method="mapped")
+    >>> round(f.relative_rmse, 3), f.ciede2000   # measure() would also compare rendered spheres
+    (0.1, None)
     """
 
     relative_rmse: float
@@ -91,11 +143,21 @@ class ExportResult:
         The document: a Mitsuba ``load_dict`` dict, a glTF JSON dict, or text (Mitsuba XML,
         pbrt-v4 scene lines, a MaterialX document).
     mapping : list of ParamMapping
+        One entry per parameter written.
     model : matfit.models.AbstractBSDF
         The BRDF the target renders, as a matfit model (the source itself when exact).
     fidelity : Fidelity or None
         None when every parameter is exact.
     notes : list of str
+        What the target does differently, in words.
+
+    Examples
+    --------
+    >>> from matfit.export import to_mitsuba
+    >>> from matfit.models import Lambert
+    >>> r = to_mitsuba(Lambert([0.5, 0.4, 0.3]))
+    >>> r.target, r.exact, r.fidelity, r.content["reflectance"]
+    ('mitsuba', True, None, {'type': 'rgb', 'value': [0.5, 0.4, 0.3]})
     """
 
     target: str
@@ -111,18 +173,68 @@ class ExportResult:
         return all(m.exact for m in self.mapping)
 
     def text(self) -> str:
-        """The document as text (JSON for dict targets)."""
+        """The document as text (JSON for dict targets).
+
+        Returns
+        -------
+        str
+
+        Examples
+        --------
+        >>> import json
+        >>> from matfit.export import to_gltf
+        >>> from matfit.models import Lambert
+        >>> json.loads(to_gltf(Lambert(0.5)).text())["asset"]["version"]
+        '2.0'
+        """
         return self.content if isinstance(self.content, str) else json.dumps(self.content, indent=2)
 
     def write(self, path):
-        """Write :meth:`text` to ``path`` (parent folders are created)."""
+        """Write :meth:`text` to ``path`` (parent folders are created).
+
+        The file ends with a newline.
+
+        Parameters
+        ----------
+        path : str or PathLike
+
+        Returns
+        -------
+        Path
+            ``path``, as a :class:`pathlib.Path`.
+
+        Examples
+        --------
+        >>> import tempfile
+        >>> from matfit.export import to_pbrt
+        >>> from matfit.models import Lambert
+        >>> with tempfile.TemporaryDirectory() as d:
+        ...     p = to_pbrt(Lambert(0.5)).write(f"{d}/scene/material.pbrt")
+        ...     p.name, p.read_text().splitlines()[0]
+        ('material.pbrt', '# matfit export: Lambert (exact)')
+        """
         p = Path(path)
         p.parent.mkdir(parents=True, exist_ok=True)
         p.write_text(self.text() + ("" if self.text().endswith("\n") else "\n"))
         return p
 
     def summary(self) -> str:
-        """A table of the mapping, then the fidelity when approximate."""
+        """A table of the mapping, then the fidelity when approximate.
+
+        Returns
+        -------
+        str
+            One line per parameter (target name, value, source, exact or why not), then the
+            fidelity and the notes.
+
+        Examples
+        --------
+        >>> from matfit.export import to_pbrt
+        >>> from matfit.models import Lambert
+        >>> print(to_pbrt(Lambert([0.5, 0.4, 0.3])).summary())
+        export to pbrt: exact
+          reflectance = [0.5, 0.4, 0.3]              <- albedo           exact
+        """
         lines = [f"export to {self.target}: {'exact' if self.exact else 'approximate'}"]
         w = max([len(m.target) for m in self.mapping] + [9])
         for m in self.mapping:
@@ -136,7 +248,22 @@ class ExportResult:
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
-        """JSON-ready description (the mapping and the fidelity, not the document)."""
+        """JSON-ready description (the mapping and the fidelity, not the document).
+
+        Returns
+        -------
+        dict
+            ``target``, ``exact``, ``mapping`` (a dict per parameter), ``fidelity`` (a dict or
+            None) and ``notes``.
+
+        Examples
+        --------
+        >>> from matfit.export import to_pbrt
+        >>> from matfit.models import Lambert
+        >>> d = to_pbrt(Lambert(0.5)).to_dict()
+        >>> d["exact"], d["mapping"][0]["target"], d["fidelity"]
+        (True, 'reflectance', None)
+        """
         return {"target": self.target, "exact": self.exact,
                 "mapping": [m.__dict__ for m in self.mapping],
                 "fidelity": None if self.fidelity is None else self.fidelity.__dict__, "notes": list(self.notes)}

@@ -157,6 +157,11 @@ class TruthMap:
     model: str
     where: Mapping = field(default_factory=dict)
 
+    def __post_init__(self):
+        # stored as sorted pairs, so that a TruthMap (and the Family holding it) stays hashable:
+        # fits cache their compiled programs by family
+        object.__setattr__(self, "where", tuple(sorted((k, tuple(v)) for k, v in dict(self.where).items())))
+
     def matches(self, spec) -> bool:
         """True when the material ``spec`` (a scene's material dict) belongs to the family.
 
@@ -175,7 +180,7 @@ class TruthMap:
         >>> TruthMap("Lambert").matches({"model": "Lambert", "albedo": 0.5})
         True
         """
-        return spec.get("model") == self.model and all(spec.get(k) in v for k, v in self.where.items())
+        return spec.get("model") == self.model and all(spec.get(k) in v for k, v in self.where)
 
 
 @dataclass(frozen=True)

@@ -34,9 +34,41 @@ EXTENSIONS = (".npz", ".csv", ".binary", ".bsdf", ".alta")
 
 
 def load(path, *, return_native: bool = False, **options):
-    """Read ``path`` into a Table (``(table, native)`` with ``return_native=True``; native is None for
-    .npz / .csv). ``options`` go to the native object's ``to_table`` (e.g. ``drop_invalid`` for MERL,
-    ``theta_d`` / ``phi_d`` for ALTA slices)."""
+    """Read ``path`` into a Table, choosing the reader by the file's extension.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        A file with one of the :data:`EXTENSIONS` (the table in the module docstring).
+    return_native : bool, default False
+        Also return the format's own object (:class:`MerlBRDF`, :class:`RglBRDF`,
+        :class:`AltaData`; None for .npz / .csv).
+    **options
+        Passed to the native object's ``to_table`` (e.g. ``drop_invalid`` for MERL,
+        ``theta_d`` / ``phi_d`` for ALTA slices), or to :meth:`Table.load_csv`
+        (``channels``).
+
+    Returns
+    -------
+    Table or (Table, native)
+
+    Raises
+    ------
+    DataFormatError
+        An unknown extension or a malformed file, naming the file.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from matfit.io import load, save
+    >>> from matfit.table import Table
+    >>> t = Table(wo=[[0.0, 0.0, 1.0]], wi=[[0.0, 0.6, 0.8]], values=[[0.2]], channels="mono")
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     save(os.path.join(d, "t.csv"), t)
+    ...     back, native = load(os.path.join(d, "t.csv"), return_native=True)
+    >>> back.values.tolist(), native
+    ([[0.2]], None)
+    """
     ext = os.path.splitext(os.fspath(path))[1].lower()
     if ext not in EXTENSIONS:
         raise data_error("extension", " or ".join(EXTENSIONS), repr(ext), file=path)
@@ -52,7 +84,33 @@ def load(path, *, return_native: bool = False, **options):
 
 
 def save(path, table: Table) -> None:
-    """Write a Table as .npz or .csv, by extension."""
+    """Write a Table as .npz or .csv, by extension.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The file to write, ending in ``.npz`` (:meth:`Table.save_npz`) or ``.csv``
+        (:meth:`Table.save_csv`).
+    table : Table
+
+    Raises
+    ------
+    ParameterError
+        ``table`` is not a Table.
+    DataFormatError
+        Another extension.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from matfit.io import load, save
+    >>> from matfit.table import Table
+    >>> t = Table(wo=[[0.0, 0.0, 1.0]], wi=[[0.0, 0.6, 0.8]], values=[[0.1, 0.2, 0.3]])
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     save(os.path.join(d, "t.npz"), t)
+    ...     load(os.path.join(d, "t.npz")).values.tolist()
+    [[0.1, 0.2, 0.3]]
+    """
     if not isinstance(table, Table):
         raise ParameterError(f"save: table must be a matfit.Table, got {type(table).__name__} (call save(path, table))")
     ext = os.path.splitext(os.fspath(path))[1].lower()

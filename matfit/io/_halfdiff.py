@@ -20,7 +20,31 @@ def _rot_y(v, a):
 
 
 def dirs_to_half_diff(wo, wi):
-    """(theta_h, phi_h, theta_d, phi_d) of direction pairs (..., 3); phi in (-pi, pi]."""
+    """(theta_h, phi_h, theta_d, phi_d) of direction pairs (..., 3); phi in (-pi, pi].
+
+    Parameters
+    ----------
+    wo, wi : array_like, (..., 3)
+        Unit directions to the viewer and to the light.
+
+    Returns
+    -------
+    theta_h, phi_h, theta_d, phi_d : numpy.ndarray, (...,) float64
+        Rusinkiewicz's half and difference angles in radians.
+
+    References
+    ----------
+    S. Rusinkiewicz, "A New Change of Variables for Efficient BRDF Representation",
+    Eurographics Workshop on Rendering, 1998.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit.io import dirs_to_half_diff
+    >>> th, ph, td, pd = dirs_to_half_diff([0.0, 0.6, 0.8], [0.0, -0.6, 0.8])  # mirror pair: h = n
+    >>> round(float(th), 6), round(float(td), 6), round(float(np.cos(td)), 6)
+    (0.0, 0.643501, 0.8)
+    """
     wo = np.asarray(wo, dtype=np.float64)
     wi = np.asarray(wi, dtype=np.float64)
     h = wi + wo
@@ -35,7 +59,28 @@ def dirs_to_half_diff(wo, wi):
 
 
 def half_diff_to_dirs(theta_h, theta_d, phi_d, phi_h=0.0):
-    """(wo, wi) unit vectors (..., 3) for the given half/difference angles (inverse of the above)."""
+    """(wo, wi) unit vectors (..., 3) for the given half/difference angles (inverse of the above).
+
+    Parameters
+    ----------
+    theta_h, theta_d, phi_d : array_like
+        Half and difference angles in radians (broadcast together).
+    phi_h : array_like, default 0
+        Azimuth of the half vector.
+
+    Returns
+    -------
+    wo, wi : numpy.ndarray, (..., 3) float64
+        Unit directions to the viewer and to the light.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit.io import dirs_to_half_diff, half_diff_to_dirs
+    >>> wo, wi = half_diff_to_dirs(0.3, 0.5, 1.0, phi_h=0.2)
+    >>> np.round(dirs_to_half_diff(wo, wi), 6).tolist()      # (theta_h, phi_h, theta_d, phi_d)
+    [0.3, 0.2, 0.5, 1.0]
+    """
     theta_h, theta_d, phi_d, phi_h = np.broadcast_arrays(*(np.asarray(x, dtype=np.float64)
                                                            for x in (theta_h, theta_d, phi_d, phi_h)))
     d = np.stack([np.sin(theta_d) * np.cos(phi_d), np.sin(theta_d) * np.sin(phi_d), np.cos(theta_d)], -1)

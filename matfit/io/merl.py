@@ -12,7 +12,6 @@ each clamped to the grid. Cell centres: ``theta_h = ((i + 1/2) / 90)^2 pi/2``, `
 """
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,6 +19,7 @@ import numpy as np
 from .._dataerr import data_error
 from ..table import Table
 from ._halfdiff import dirs_to_half_diff, half_diff_to_dirs
+from ._source import read_source
 
 __all__ = ["MerlBRDF", "read_merl", "write_merl", "RES", "SCALE", "cell_centres", "cell_index"]
 
@@ -30,7 +30,21 @@ FILE_SIZE = 12 + 3 * _N * 8
 
 
 def cell_centres():
-    """(theta_h, theta_d, phi_d) 1-D arrays of the cell centres (90,), (90,), (180,)."""
+    """(theta_h, theta_d, phi_d) 1-D arrays of the cell centres (90,), (90,), (180,).
+
+    Returns
+    -------
+    theta_h, theta_d, phi_d : numpy.ndarray
+        Radians; ``theta_h`` on MERL's square-root grid.
+
+    Examples
+    --------
+    >>> th, td, pd = cell_centres()
+    >>> th.shape, td.shape, pd.shape
+    ((90,), (90,), (180,))
+    >>> [int(i) for i in cell_index(th[7], td[45], pd[100])]   # a centre falls in its own cell
+    [7, 45, 100]
+    """
     th = ((np.arange(RES[0]) + 0.5) / RES[0]) ** 2 * (np.pi / 2)
     td = (np.arange(RES[1]) + 0.5) / RES[1] * (np.pi / 2)
     pd = (np.arange(RES[2]) + 0.5) / RES[2] * np.pi
@@ -38,7 +52,24 @@ def cell_centres():
 
 
 def cell_index(theta_h, theta_d, phi_d):
-    """MERL's cell indices (i_h, i_d, i_p) for half/difference angles (BRDFRead.cpp rule)."""
+    """MERL's cell indices (i_h, i_d, i_p) for half/difference angles (BRDFRead.cpp rule).
+
+    Parameters
+    ----------
+    theta_h, theta_d, phi_d : array_like
+        Half and difference angles in radians; ``phi_d`` in (-pi, pi] is folded to [0, pi).
+
+    Returns
+    -------
+    i_h, i_d, i_p : numpy.ndarray of int64
+        Indices clamped to the grid (NaN angles give 0).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> [int(i) for i in cell_index(0.0, np.pi / 4, -np.pi / 2)]
+    [0, 45, 90]
+    """
     theta_h = np.asarray(theta_h, dtype=np.float64)
     deg = theta_h / (np.pi / 2) * RES[0]
     ih = np.where(theta_h <= 0.0, 0, np.floor(np.sqrt(np.maximum(deg * RES[0], 0.0))))
@@ -54,7 +85,29 @@ def cell_index(theta_h, theta_d, phi_d):
 
 @dataclass(frozen=True, eq=False)
 class MerlBRDF:
-    """A MERL table. ``raw`` (3, 90, 90, 180) float64 holds the stored numbers exactly as in the file."""
+    """A MERL table. ``raw`` (3, 90, 90, 180) float64 holds the stored numbers exactly as in the file.
+
+    Attributes
+    ----------
+    raw : numpy.ndarray, (3, 90, 90, 180) float64
+        The stored numbers, indexed ``(channel, theta_h, theta_d, phi_d)``; the BRDF is
+        ``raw * SCALE`` (:attr:`values`), negative cells are invalid.
+    source : str or None
+        The file read (None for bytes or a table built in memory).
+
+    References
+    ----------
+    W. Matusik, H. Pfister, M. Brand, L. McMillan, "A Data-Driven Reflectance Model",
+    ACM Transactions on Graphics 22(3), 2003.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit.io import MerlBRDF
+    >>> m = MerlBRDF.from_values(np.full((3, 90, 90, 180), 0.3))
+    >>> m.raw.shape, round(float(m.values[1, 0, 0, 0]), 12), bool(m.valid.all())
+    ((3, 90, 90, 180), 0.3, True)
+    """
 
     raw: np.ndarray
     source: str | None = None
@@ -71,7 +124,29 @@ class MerlBRDF:
 
     @classmethod
     def from_values(cls, values, valid=None, source=None) -> "MerlBRDF":
-        """Build from BRDF values (3, 90, 90, 180) in 1/sr; cells where ``valid`` is false are stored as -1."""
+        """Build from BRDF values (3, 90, 90, 180) in 1/sr; cells where ``valid`` is false are stored as -1.
+
+        Parameters
+        ----------
+        values : array_like, (3, 90, 90, 180)
+            Finite BRDF values in 1/sr.
+        valid : array_like of bool, (90, 90, 180), optional
+            Cells holding a measurement (default: all).
+        source : str, optional
+
+        Returns
+        -------
+        MerlBRDF
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from matfit.io import MerlBRDF
+        >>> valid = np.ones((90, 90, 180), bool); valid[0, 0, 0] = False
+        >>> m = MerlBRDF.from_values(np.full((3, 90, 90, 180), 0.3), valid)
+        >>> float(m.raw[0, 0, 0, 0]), int((~m.valid).sum())
+        (-1.0, 1)
+        """
         v = np.asarray(values, dtype=np.float64)
         if v.shape != (3,) + RES:
             raise data_error("values", f"shape {(3,) + RES}", f"shape {v.shape}")
@@ -87,6 +162,26 @@ class MerlBRDF:
 
         Pairs with either direction at or below the horizon, or landing in an invalid cell, are invalid
         and get value 0.
+
+        Parameters
+        ----------
+        wo, wi : array_like, (N, 3) or (3,)
+            Unit directions to the viewer and to the light (MERL's incoming direction).
+
+        Returns
+        -------
+        values : numpy.ndarray, (N, 3) float64
+            The BRDF of the cells the pairs fall in (0 where invalid).
+        valid : numpy.ndarray, (N,) bool
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from matfit.io import MerlBRDF
+        >>> m = MerlBRDF.from_values(np.full((3, 90, 90, 180), 0.3))
+        >>> values, ok = m.lookup([[0.0, 0.6, 0.8], [0.0, 0.0, -1.0]], [[0.0, -0.6, 0.8], [0.0, 0.0, 1.0]])
+        >>> np.round(values, 6).tolist(), ok.tolist()
+        ([[0.3, 0.3, 0.3], [0.0, 0.0, 0.0]], [True, False])
         """
         wo = np.atleast_2d(np.asarray(wo, dtype=np.float64))
         wi = np.atleast_2d(np.asarray(wi, dtype=np.float64))
@@ -103,6 +198,24 @@ class MerlBRDF:
         ``wi`` is MERL's incoming (light) direction, i.e. the difference vector rotated by theta_h about y;
         ``wo`` its mirror about the half vector. Invalid cells keep their row with value 0 and valid=False,
         unless ``drop_invalid``.
+
+        Parameters
+        ----------
+        drop_invalid : bool, default False
+            Leave the invalid cells out instead of keeping them as invalid rows.
+
+        Returns
+        -------
+        Table
+            ``"rgb"``, 90 * 90 * 180 rows (fewer with ``drop_invalid``).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from matfit.io import MerlBRDF
+        >>> t = MerlBRDF.from_values(np.full((3, 90, 90, 180), 0.3)).to_table()
+        >>> len(t), t.channels, t.provenance["format"]
+        (1458000, 'rgb', 'merl')
         """
         th, td, pd = cell_centres()
         TH, TD, PD = np.meshgrid(th, td, pd, indexing="ij")
@@ -118,16 +231,38 @@ class MerlBRDF:
 
 
 def read_merl(path) -> MerlBRDF:
-    """Read a MERL ``.binary`` file (path or bytes) with strict checks; raises DataFormatError."""
-    if isinstance(path, (bytes, bytearray, memoryview)):
-        buf, src = bytes(path), None
-        name = "<bytes>"
-    else:
-        src = os.fspath(path)
-        name = src
-        with open(src, "rb") as fh:
-            buf = fh.read(FILE_SIZE + 1)
-    file = name
+    """Read a MERL ``.binary`` file (path or bytes) with strict checks; raises DataFormatError.
+
+    Parameters
+    ----------
+    path : str, PathLike or bytes
+        The ``.binary`` file, or its contents.
+
+    Returns
+    -------
+    MerlBRDF
+        ``raw`` read-only, exactly the file's numbers.
+
+    Raises
+    ------
+    DataFormatError
+        An empty or truncated file, dimensions other than (90, 90, 180), a size other than
+        ``FILE_SIZE`` bytes (trailing data included) or NaN / Inf values; the message names
+        the file.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> from matfit.io import MerlBRDF, read_merl, write_merl
+    >>> m = MerlBRDF.from_values(np.full((3, 90, 90, 180), 0.3))
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     write_merl(os.path.join(d, "grey.binary"), m)
+    ...     back = read_merl(os.path.join(d, "grey.binary"))
+    >>> bool(np.array_equal(back.raw, m.raw)), back.raw.flags.writeable
+    (True, False)
+    """
+    buf, src, file = read_source(path, FILE_SIZE + 1)
     if len(buf) == 0:
         raise data_error("file", f"{FILE_SIZE} bytes", "an empty file", file=file)
     if len(buf) < 12:
@@ -150,7 +285,30 @@ def read_merl(path) -> MerlBRDF:
 
 
 def write_merl(path, brdf: MerlBRDF) -> None:
-    """Write ``brdf.raw`` in the MERL layout (bit-exact round trip with :func:`read_merl`)."""
+    """Write ``brdf.raw`` in the MERL layout (bit-exact round trip with :func:`read_merl`).
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The file to write (replaced if present).
+    brdf : MerlBRDF
+
+    Raises
+    ------
+    DataFormatError
+        ``brdf.raw`` is not of shape (3, 90, 90, 180).
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> from matfit.io import MerlBRDF, write_merl
+    >>> from matfit.io.merl import FILE_SIZE
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     write_merl(os.path.join(d, "grey.binary"), MerlBRDF.from_values(np.full((3, 90, 90, 180), 0.3)))
+    ...     os.path.getsize(os.path.join(d, "grey.binary")) == FILE_SIZE
+    True
+    """
     raw = np.asarray(brdf.raw, dtype=np.float64)
     if raw.shape != (3,) + RES:
         raise data_error("raw", f"shape {(3,) + RES}", f"shape {raw.shape}", file=path)

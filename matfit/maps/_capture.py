@@ -71,7 +71,24 @@ VERSION = 1
 
 
 class CaptureError(DataFormatError):
-    """A capture folder or document is malformed; the message names the file and the field."""
+    """A capture folder or document is malformed; the message names the file and the field.
+
+    Parameters
+    ----------
+    *args : object
+        The message: the capture document (or image), the key or entry, expected vs found.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from matfit.maps import CaptureError, load_capture
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     try:
+    ...         load_capture(d)
+    ...     except CaptureError as e:
+    ...         print(str(e).replace(d, "<folder>"))
+    <folder>: no capture.json or capture.toml in the capture folder
+    """
 
 
 @dataclass(frozen=True, eq=False)
@@ -92,6 +109,21 @@ class Capture:
         The N image files, in the document's order.
     meta : dict
         The parsed capture document.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> import numpy as np
+    >>> from matfit.maps import load_capture, write_capture_document, write_exr
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     write_exr(f"{d}/a.exr", np.full((2, 3), 0.2)); write_exr(f"{d}/b.exr", np.full((2, 3), 0.1))
+    ...     _ = write_capture_document(d, {"images": ["a.exr", "b.exr"], "lights": [[0, 0, 1], [0.6, 0, 0.8]],
+    ...                                    "camera": [0, 0, 1]})
+    ...     cap = load_capture(d)
+    >>> cap.shape, cap.n_images, cap.n_channels, cap.shared_directions, cap.wi.shape
+    ((2, 3), 2, 1, True, (2, 3))
+    >>> [round(float(v), 6) for v in cap.values[0, 0, :, 0]]     # pixel / cos(theta_i)
+    [0.2, 0.125]
     """
 
     wo: np.ndarray
@@ -433,7 +465,7 @@ def load_capture(path, out=None) -> Capture:
     >>> import tempfile, numpy as np
     >>> from matfit.maps import load_capture, write_capture_document
     >>> from matfit.maps import write_exr
-    >>> folder = tempfile.mkdtemp()
+    >>> tmp = tempfile.TemporaryDirectory(); folder = tmp.name
     >>> write_exr(f"{folder}/a.exr", np.full((2, 3, 3), 0.5))
     >>> _ = write_capture_document(folder, {"images": ["a.exr"], "lights": [[0, 0, 2]], "camera": [0, 0, 1],
     ...                                     "irradiance": 2.0})
@@ -449,6 +481,7 @@ def load_capture(path, out=None) -> Capture:
     ('memmap', ['valid.npy', 'values.npy'])
     >>> bool(np.array_equal(on_disk.values, cap.values) and np.array_equal(on_disk.valid, cap.valid))
     True
+    >>> del on_disk; tmp.cleanup()
     """
     doc_path = _find_document(path)
     where = str(doc_path)
@@ -518,7 +551,7 @@ class _NpyFile:
         self.offset = self.file.tell()
         self.file.truncate(self.offset + self.shape[0] * self.row_bytes)  # sparse until written
 
-    def write_rows(self, row, band):
+    def write_rows(self, row, band) -> None:
         """Write ``band`` (rows ``row ...`` of the array: one contiguous range of the file)."""
         assert band.shape[1:] == self.shape[1:] and band.flags.c_contiguous
         buf = memoryview(band).cast("B")
@@ -527,11 +560,13 @@ class _NpyFile:
             done = os.pwrite(self.file.fileno(), buf, pos)
             buf, pos = buf[done:], pos + done
 
-    def commit(self):
+    def commit(self) -> None:
+        """Close the file and rename it to its final name."""
         self.file.close()
         os.replace(self.partial, self.path)
 
-    def discard(self):
+    def discard(self) -> None:
+        """Close the file and delete it."""
         self.file.close()
         self.partial.unlink(missing_ok=True)
 
@@ -667,6 +702,7 @@ def write_capture_document(folder, doc):
     Parameters
     ----------
     folder : str or Path
+        The capture folder.
     doc : dict
         The capture document (see the module docstring).
 
@@ -675,14 +711,22 @@ def write_capture_document(folder, doc):
     Path
         The path of the written ``capture.json``.
 
+    Raises
+    ------
+    CaptureError
+        A key that capture documents do not define.
+
     Examples
     --------
-    >>> import tempfile
+    >>> import json, tempfile
+    >>> import numpy as np
     >>> from matfit.maps import write_capture_document
-    >>> p = write_capture_document(tempfile.mkdtemp(), {"images": ["a.png"], "lights": [[0, 0, 1]],
-    ...                                                 "camera": [0, 0, 1]})
-    >>> p.name
-    'capture.json'
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     p = write_capture_document(d, {"images": ["a.png"], "lights": np.array([[0.0, 0.0, 1.0]]),
+    ...                                    "camera": [0, 0, 1]})
+    ...     doc = json.loads(p.read_text())
+    >>> p.name, doc["format"], doc["version"], doc["lights"]
+    ('capture.json', 'matfit-capture', 1, [[0.0, 0.0, 1.0]])
     """
     folder = Path(folder)
     out = {"format": FORMAT_NAME, "version": VERSION}

@@ -61,17 +61,29 @@ class MapResult:
         (fixed parameters included, broadcast); NaN where a texel was not fitted.
     stderr : dict
         Standard errors of the free parameters, same shapes (NaN where not fitted).
-    objective : (H, W)
+    objective : numpy.ndarray, (H, W)
         Half the sum of squared residuals at the solution.
-    rel_rmse : (H, W)
+    rel_rmse : numpy.ndarray, (H, W)
         Root mean square of the relative residuals ``(f - y) / y`` over the texel's measurements.
-    converged, at_bound, fitted : (H, W) bool
+    converged, at_bound, fitted : numpy.ndarray, (H, W) bool
         Solver convergence; some parameter within 0.1 % of its range's ends; texel fitted
         (inside ``mask`` with more usable measurements than free parameters).
-    steps, n_measurements : (H, W) int
+    steps, n_measurements : numpy.ndarray, (H, W) int
+        Solver iterations, and usable measurements, per texel.
     wall_time : float
         Seconds of the whole call.
     info : list of str
+        Notes: texels left out, the neighbour prior.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit.maps import fit_map
+    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
+    >>> mask = np.array([[True, False]])
+    >>> r = fit_map(wo, wi, np.full((1, 2, 3, 3), 0.1), model="lambert", mask=mask)
+    >>> r.family, r.shape, r.labels, r.fitted.tolist(), bool(np.isnan(r.params["albedo"][0, 1]).all())
+    ('lambert', (1, 2), ['albedo[0]', 'albedo[1]', 'albedo[2]'], [[True, False]], True)
     """
 
     family: str
@@ -90,14 +102,26 @@ class MapResult:
 
     @property
     def shape(self):
+        """``(H, W)``: the map's size in texels."""
         return self.fitted.shape
 
     @property
     def texels_per_second(self):
+        """Texels fitted per second of :attr:`wall_time`."""
         return float(self.fitted.sum()) / max(self.wall_time, 1e-12)
 
     def model_at(self, row, col):
         """The fitted model of texel ``(row, col)``.
+
+        Parameters
+        ----------
+        row, col : int
+            The texel.
+
+        Returns
+        -------
+        matfit.models.AbstractBSDF
+            The family's model with the texel's parameters (NaN for a texel not fitted).
 
         Examples
         --------
@@ -105,15 +129,32 @@ class MapResult:
         >>> from matfit.maps import fit_map
         >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
         >>> r = fit_map(wo, wi, np.full((1, 2, 3, 3), 0.1), model="lambert")
-        >>> type(r.model_at(0, 1)).__name__
-        'Lambert'
+        >>> m = r.model_at(0, 1)
+        >>> type(m).__name__, [round(float(x), 4) for x in m.reflectance]     # albedo = pi * 0.1
+        ('Lambert', [0.3142, 0.3142, 0.3142])
         """
         fam = get_family(self.family)
         C = next((v.shape[-1] for v in self.params.values() if v.ndim == 3), 1)
         return fam.build({k: v[row, col] for k, v in self.params.items()}, C)
 
     def summary(self) -> str:
-        """A few lines: texels fitted, converged, at a bound, median parameters and errors."""
+        """A few lines: texels fitted, converged, at a bound, median parameters and errors.
+
+        Returns
+        -------
+        str
+            The first line names the family, the map's size and the texels fitted; one line per
+            parameter follows.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from matfit.maps import fit_map
+        >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
+        >>> lines = fit_map(wo, wi, np.full((1, 2, 3, 3), 0.1), model="lambert").summary().splitlines()
+        >>> lines[0].split(" in ")[0], lines[2].split(",")[0]
+        ('lambert map 1x2: 2 texels fitted', '  albedo     median 0.3142 0.3142 0.3142')
+        """
         n = int(self.fitted.sum())
         lines = [f"{self.family} map {self.shape[0]}x{self.shape[1]}: {n} texels fitted in {self.wall_time:.1f} s "
                  f"({self.texels_per_second:.0f} texels/s)",
@@ -452,7 +493,7 @@ def _gather(local, n_chunks, P, chunk, p, store):
             store(k, {name: np.asarray(a[q, j]) for name, a in gathered.items()})
 
 
-def initialize_processes(coordinator, num_processes, process_id, timeout=120):
+def initialize_processes(coordinator, num_processes, process_id, timeout=120) -> None:
     """Join JAX's multi-process runtime (``jax.distributed.initialize``) before any JAX work, so
     that :func:`fit_map` splits its chunks over ``num_processes`` processes.
 
@@ -461,8 +502,14 @@ def initialize_processes(coordinator, num_processes, process_id, timeout=120):
     coordinator : str
         ``host:port`` of process 0 (e.g. ``"127.0.0.1:12355"``).
     num_processes, process_id : int
+        The number of processes (>= 1) and this one's index (from 0).
     timeout : int
         Seconds to wait for every process to join.
+
+    Raises
+    ------
+    ParameterError
+        A count, index or address out of range.
 
     Examples
     --------

@@ -101,7 +101,36 @@ def _read_exr(path):
 
 def read_image_codes(path):
     """Like :func:`read_image`, but PNG pixels stay integer codes (uint8 or uint16); EXR pixels
-    are float32. Used by the capture loader to decode sRGB through a lookup table."""
+    are float32. Used by the capture loader to decode sRGB through a lookup table.
+
+    Parameters
+    ----------
+    path : str or Path
+        The image; the files :func:`read_image` accepts.
+
+    Returns
+    -------
+    pixels : numpy.ndarray, (H, W, C)
+        PNG: the codes (uint8 or uint16); EXR: float32 values.
+    info : dict
+        As :func:`read_image` returns.
+
+    Raises
+    ------
+    DataFormatError
+        As :func:`read_image`.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> from matfit.maps._images import read_image_codes, write_png
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     write_png(os.path.join(d, "ramp.png"), np.array([[0.0, 0.5, 1.0]]), bit_depth=16)
+    ...     codes, info = read_image_codes(os.path.join(d, "ramp.png"))
+    >>> codes.dtype.name, codes[0, :, 0].tolist(), info["max_code"]
+    ('uint16', [0, 32768, 65535], 65535)
+    """
     fmt = _format_of(path)
     if not os.path.isfile(path):
         raise DataFormatError(f"{path}: image file not found")
@@ -122,9 +151,21 @@ def _canonical_error(path, what):
 class ImageRows:
     """Bands of rows of one image, read in order from the top: see :func:`open_image_rows`.
 
+    Parameters
+    ----------
+    path : str or Path
+        The image file.
+    shape, info
+        As the attributes.
+    read : callable
+        ``read(y, n)``: rows ``y .. y + n - 1`` (``n < 0``: check the end of the data).
+    close : callable, optional
+        Releases the file.
+
     Attributes
     ----------
     path : Path
+        The image file.
     shape : tuple
         ``(H, W, C)``, as :func:`read_image_codes` would return.
     info : dict
@@ -133,6 +174,18 @@ class ImageRows:
         The number of rows read so far.
     interlaced : bool
         An interlaced PNG: decoded whole on the first read, held in memory until closed.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> from matfit.maps._images import open_image_rows, write_exr
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     write_exr(os.path.join(d, "rows.exr"), np.arange(6.0).reshape(3, 2))
+    ...     with open_image_rows(os.path.join(d, "rows.exr")) as im:
+    ...         first = im.read(2)
+    ...         print(im.shape, im.position, first[:, :, 0].tolist(), im.read(5)[:, :, 0].tolist())
+    (3, 2, 1) 2 [[0.0, 1.0], [2.0, 3.0]] [[4.0, 5.0]]
     """
 
     def __init__(self, path, shape, info, read, close=None):
@@ -143,21 +196,81 @@ class ImageRows:
 
     def read(self, n):
         """The next ``n`` rows, ``(n, W, C)``: integer codes (uint8 or uint16) for PNG, float32
-        for EXR; fewer at the bottom of the image, none past it. Errors as :func:`read_image_codes`."""
+        for EXR; fewer at the bottom of the image, none past it. Errors as :func:`read_image_codes`.
+
+        Parameters
+        ----------
+        n : int
+            Rows wanted.
+
+        Returns
+        -------
+        numpy.ndarray, (m, W, C)
+            ``m = min(n, rows left)`` rows.
+
+        Examples
+        --------
+        >>> import os, tempfile
+        >>> import numpy as np
+        >>> from matfit.maps._images import open_image_rows, write_png
+        >>> with tempfile.TemporaryDirectory() as d:
+        ...     path = os.path.join(d, "ramp.png")
+        ...     write_png(path, np.linspace(0, 1, 6).reshape(3, 2), bit_depth=16)
+        ...     with open_image_rows(path) as im:
+        ...         sizes = [len(im.read(2)), len(im.read(2)), len(im.read(2))]
+        >>> sizes, im.position
+        ([2, 1, 0], 3)
+        """
         n = max(0, min(int(n), self.shape[0] - self.position))
         rows = self._read(self.position, n)
         self.position += n
         return rows
 
-    def finish(self):
-        """Check the image's data ends where expected (after its last row) and close it."""
+    def finish(self) -> None:
+        """Check the image's data ends where expected (after its last row) and close it.
+
+        Raises
+        ------
+        ValueError
+            Rows are left unread.
+        DataFormatError
+            Data follows the last row, or the stream is damaged (as :func:`read_image_codes`).
+
+        Examples
+        --------
+        >>> import tempfile
+        >>> import numpy as np
+        >>> from matfit.maps._images import open_image_rows, write_exr
+        >>> with tempfile.TemporaryDirectory() as d:
+        ...     write_exr(f"{d}/flat.exr", np.ones((3, 4)))
+        ...     im = open_image_rows(f"{d}/flat.exr")
+        ...     try:
+        ...         im.finish()                    # nothing read yet
+        ...     except ValueError as e:
+        ...         print(str(e).split(": ")[1])
+        ...     _ = im.read(3); im.finish()
+        3 rows not read
+        """
         if self.position < self.shape[0]:
             raise ValueError(f"{self.path}: {self.shape[0] - self.position} rows not read")
         self._read(self.shape[0], -1)
         self.close()
 
-    def close(self):
-        """Release the file (idempotent)."""
+    def close(self) -> None:
+        """Release the file (idempotent).
+
+        Examples
+        --------
+        >>> import tempfile
+        >>> from matfit.maps._images import open_image_rows, write_png
+        >>> with tempfile.TemporaryDirectory() as d:
+        ...     write_png(f"{d}/black.png", [[0.0, 0.0]], bit_depth=8)
+        ...     with open_image_rows(f"{d}/black.png") as im:
+        ...         first = im.read(1)
+        ...     im.close()                       # closed on leaving the block: this does nothing
+        >>> first.shape
+        (1, 2, 1)
+        """
         if self._close is not None:
             close, self._close = self._close, None
             close()
@@ -277,11 +390,11 @@ def open_image_rows(path):
     --------
     >>> import tempfile, os, numpy as np
     >>> from matfit.maps._images import open_image_rows, write_png
-    >>> path = os.path.join(tempfile.mkdtemp(), "ramp.png")
-    >>> write_png(path, np.linspace(0, 1, 12).reshape(4, 3), bit_depth=8)
-    >>> with open_image_rows(path) as im:
-    ...     top, rest = im.read(1), im.read(10)
-    ...     im.finish()
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     write_png(os.path.join(d, "ramp.png"), np.linspace(0, 1, 12).reshape(4, 3), bit_depth=8)
+    ...     with open_image_rows(os.path.join(d, "ramp.png")) as im:
+    ...         top, rest = im.read(1), im.read(10)
+    ...         im.finish()
     >>> im.shape, top.shape, rest.shape, top.dtype.name, int(rest[-1, -1, 0])
     ((4, 3, 1), (1, 3, 1), (3, 3, 1), 'uint8', 255)
     """
@@ -319,9 +432,9 @@ def read_image(path):
     --------
     >>> import tempfile, os, numpy as np
     >>> from matfit.maps._images import read_image, write_png
-    >>> path = os.path.join(tempfile.mkdtemp(), "gray.png")
-    >>> write_png(path, np.full((2, 3), 0.5), bit_depth=8)
-    >>> pixels, info = read_image(path)
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     write_png(os.path.join(d, "gray.png"), np.full((2, 3), 0.5), bit_depth=8)
+    ...     pixels, info = read_image(os.path.join(d, "gray.png"))
     >>> pixels.shape, info["bit_depth"], info["max_code"], round(float(pixels[0, 0, 0]) * 255)
     ((2, 3, 1), 8, 255, 128)
     """
@@ -344,25 +457,34 @@ def _as_image(what, path, array):
     return a
 
 
-def write_png(path, array, bit_depth=16):
+def write_png(path, array, bit_depth=16) -> None:
     """Write values in [0, 1] as an 8- or 16-bit PNG (codes rounded to the nearest integer).
 
     Parameters
     ----------
     path : str or Path
+        The file to write (replaced if present).
     array : array_like, (H, W) or (H, W, C) with C in 1..4
         1: greyscale, 2: greyscale + alpha, 3: RGB, 4: RGBA. Values outside [0, 1] are clipped.
         No colour encoding is applied: encode sRGB before calling if wanted.
     bit_depth : {8, 16}
+        Bits per code.
+
+    Raises
+    ------
+    DataFormatError
+        Another bit depth, a non-numeric, non-finite or wrongly shaped array, or a file that
+        cannot be written; the message names the file.
 
     Examples
     --------
     >>> import tempfile, os, numpy as np
     >>> from matfit.maps._images import read_image, write_png
-    >>> path = os.path.join(tempfile.mkdtemp(), "rgb.png")
-    >>> write_png(path, np.ones((4, 5, 3)))
-    >>> float(read_image(path)[0].min())
-    1.0
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     write_png(os.path.join(d, "rgb.png"), np.full((4, 5, 3), 2.0))   # clipped to 1
+    ...     pixels, info = read_image(os.path.join(d, "rgb.png"))
+    >>> float(pixels.min()), pixels.shape, info["bit_depth"]
+    (1.0, (4, 5, 3), 16)
     """
     import png
 
@@ -382,22 +504,28 @@ def write_png(path, array, bit_depth=16):
         raise DataFormatError(f"{path}: cannot write the PNG file ({e})") from None
 
 
-def write_exr(path, array):
+def write_exr(path, array) -> None:
     """Write a float32 EXR image (ZIP compression): channels R, G, B for 3 channels, Y for 1.
 
     Parameters
     ----------
     path : str or Path
+        The file to write (replaced if present).
     array : array_like, (H, W), (H, W, 1) or (H, W, 3)
         Linear values, stored as FLOAT (32-bit).
+
+    Raises
+    ------
+    DataFormatError
+        Another channel count, non-finite values, or a file that cannot be written.
 
     Examples
     --------
     >>> import tempfile, os, numpy as np
     >>> from matfit.maps._images import read_image, write_exr
-    >>> path = os.path.join(tempfile.mkdtemp(), "hdr.exr")
-    >>> write_exr(path, np.full((2, 2, 3), 7.25))
-    >>> pixels, info = read_image(path)
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     write_exr(os.path.join(d, "hdr.exr"), np.full((2, 2, 3), 7.25))
+    ...     pixels, info = read_image(os.path.join(d, "hdr.exr"))
     >>> float(pixels[1, 1, 2]), info["bit_depth"], info["format"]
     (7.25, 32, 'exr')
     """

@@ -98,12 +98,25 @@ def _gltf_document(material, textures):
 def gltf_maps(result: MapResult):
     """The glTF texture images and material of a map (see the module doc).
 
+    Parameters
+    ----------
+    result : MapResult
+        A map of a family in :data:`GLTF_FAMILIES`.
+
     Returns
     -------
-    (images, material, notes)
-        ``images``: file name -> (H, W, 3) array in [0, 1], already encoded as glTF reads it
-        (sRGB for colour textures); ``material``: the glTF material dict with texture indices in
-        the order of ``images``; ``notes``: what is approximate.
+    images : dict
+        File name -> (H, W, 3) array in [0, 1], already encoded as glTF reads it (sRGB for
+        colour textures).
+    material : dict
+        The glTF material, with texture indices in the order of ``images``.
+    notes : list of str
+        What is approximate.
+
+    Raises
+    ------
+    ParameterError
+        A family without a glTF mapping.
 
     Examples
     --------
@@ -199,22 +212,32 @@ def write_maps(result: MapResult, folder, formats=FORMATS):
     Parameters
     ----------
     result : MapResult
+        What :func:`fit_map` returned.
     folder : str or Path
-    formats : sequence of {"png", "exr", "gltf"}
+        The output folder.
+    formats : sequence of {"png", "exr", "gltf"}, default FORMATS
+        The files to write (``fitted.png`` and ``converged.png`` always are).
 
     Returns
     -------
     dict
         The ``maps.json`` index as written.
 
+    Raises
+    ------
+    ParameterError
+        An unknown format, or ``"gltf"`` for a family without a glTF mapping.
+
     Examples
     --------
     >>> import tempfile, numpy as np
     >>> from matfit.maps import fit_map, write_maps
     >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
-    >>> index = write_maps(fit_map(wo, wi, np.full((2, 2, 3, 3), 0.1), model="lambert"), tempfile.mkdtemp())
-    >>> index["params"]["albedo"]["exr"], index["gltf"]
-    ('albedo.exr', 'material.gltf')
+    >>> result = fit_map(wo, wi, np.full((2, 2, 3, 3), 0.1), model="lambert")
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     index = write_maps(result, d)
+    >>> index["params"]["albedo"]["exr"], index["gltf"], index["texels_fitted"]
+    ('albedo.exr', 'material.gltf', 4)
     """
     if isinstance(formats, str):
         formats = (formats,)
@@ -262,14 +285,32 @@ def write_maps(result: MapResult, folder, formats=FORMATS):
 def read_maps(folder):
     """Read a folder written by :func:`write_maps` back (from its EXR maps) as a dict of arrays.
 
+    Parameters
+    ----------
+    folder : str or Path
+        A folder holding ``maps.json``.
+
+    Returns
+    -------
+    dict
+        Parameter name -> float32 map, ``(H, W, C)`` per channel, else ``(H, W)``.
+
+    Raises
+    ------
+    ParameterError
+        No ``maps.json``, or a parameter written without its EXR map.
+
     Examples
     --------
     >>> import tempfile, numpy as np
     >>> from matfit.maps import fit_map, read_maps, write_maps
     >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
-    >>> d = tempfile.mkdtemp(); _ = write_maps(fit_map(wo, wi, np.full((2, 2, 3, 3), 0.1), model="lambert"), d)
-    >>> read_maps(d)["albedo"].shape
-    (2, 2, 3)
+    >>> result = fit_map(wo, wi, np.full((2, 2, 3, 3), 0.1), model="lambert")
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     _ = write_maps(result, d, formats=("exr",))
+    ...     maps = read_maps(d)
+    >>> maps["albedo"].shape, bool(np.allclose(maps["albedo"], result.params["albedo"]))
+    ((2, 2, 3), True)
     """
     from ._images import read_image
 

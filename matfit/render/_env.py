@@ -35,10 +35,22 @@ def sky_map(shape=SKY_SHAPE):
     """The built-in procedural sky as an (H, W, 3) float32 equirectangular map: a blue zenith
     fading to a pale horizon, a dim brown ground, and a small bright sun.
 
+    Parameters
+    ----------
+    shape : tuple of int, default SKY_SHAPE
+        ``(H, W)`` of the map.
+
+    Returns
+    -------
+    numpy.ndarray, (H, W, 3) float32
+        Linear radiance; the sun (:data:`SUN_DIRECTION`, :data:`SUN_RADIUS`) is far brighter
+        than the sky.
+
     Examples
     --------
-    >>> sky_map((16, 32)).shape
-    (16, 32, 3)
+    >>> sky = sky_map((16, 32))
+    >>> sky.shape, sky.dtype.name, bool(sky[0].mean() > sky[-1].mean())   # the zenith row is brighter
+    ((16, 32, 3), 'float32', True)
     """
     d = _dirs(*shape)
     up = d[..., 1]
@@ -53,7 +65,35 @@ def sky_map(shape=SKY_SHAPE):
 
 def load_environment(environment):
     """``None`` for the furnace, else an (H, W, 3) float32 map for ``"sky"``, an array, or a file
-    (``.npy``, or ``.hdr``/``.exr`` through ``imageio``)."""
+    (``.npy``, or ``.hdr``/``.exr`` through ``imageio``).
+
+    Parameters
+    ----------
+    environment : "furnace", "sky", array_like or str or Path
+        The uniform furnace, the built-in sky (:func:`sky_map`), an (H, W, 3) or (H, W, 4)
+        equirectangular map (alpha dropped), or a file holding one.
+
+    Returns
+    -------
+    numpy.ndarray, (H, W, 3) float32, or None
+        The map (None for the furnace).
+
+    Raises
+    ------
+    ParameterError
+        A missing file, an unsupported extension, or ``imageio`` missing for .hdr / .exr.
+    DataFormatError
+        A map that is not (H, W, 3) with H, W >= 2, not numeric, or with non-finite or
+        negative values.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> load_environment("furnace") is None, load_environment("sky").shape
+    (True, (128, 256, 3))
+    >>> load_environment(np.ones((2, 4, 4))).shape      # RGBA: the alpha channel is dropped
+    (2, 4, 3)
+    """
     if isinstance(environment, str) and environment == "furnace":
         return None
     if isinstance(environment, str) and environment == "sky":
@@ -89,7 +129,35 @@ def _check_map(a, where):
 
 
 class Environment(eqx.Module):
-    """An equirectangular map with its sampling tables (marginal over rows, conditional over columns)."""
+    """An equirectangular map with its sampling tables (marginal over rows, conditional over columns).
+
+    Build one with :meth:`Environment.of`. Directions are drawn with a density proportional
+    to the pixels' luminance times their solid angle, plus a small floor so that every pixel
+    can be drawn, uniformly in solid angle inside the pixel.
+
+    Attributes
+    ----------
+    image : jax.Array, (H, W, 3) float32
+        The map (world frame of the module docstring).
+    row_cdf : jax.Array, (H + 1,)
+        Cumulative probabilities of the rows.
+    col_cdf : jax.Array, (H, W + 1)
+        Cumulative probabilities of the columns within each row.
+    pixel_p : jax.Array, (H, W)
+        Probability of drawing each pixel.
+
+    References
+    ----------
+    M. Pharr, W. Jakob, G. Humphreys, *Physically Based Rendering*, 4th ed., Sec. 12.5.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit.render import Environment
+    >>> env = Environment.of(np.ones((4, 8, 3), np.float32))
+    >>> env.image.shape, float(env.row_cdf[-1]), round(float(env.pixel_p.sum()), 6)
+    ((4, 8, 3), 1.0, 1.0)
+    """
 
     image: jnp.ndarray  # (H, W, 3)
     row_cdf: jnp.ndarray  # (H + 1,)
@@ -98,6 +166,25 @@ class Environment(eqx.Module):
 
     @classmethod
     def of(cls, image):
+        """The environment of an (H, W, 3) map, with its sampling tables.
+
+        Parameters
+        ----------
+        image : array_like, (H, W, 3)
+            Linear radiance, finite and >= 0 (as :func:`load_environment` returns).
+
+        Returns
+        -------
+        Environment
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from matfit.render import Environment, sky_map
+        >>> env = Environment.of(sky_map((16, 32)))
+        >>> float(env.pixel_p.max() / env.pixel_p.min()) > 100     # the sun is drawn most often
+        True
+        """
         img = np.asarray(image, np.float64)
         H, W = img.shape[:2]
         th = (np.arange(H) + 0.5) * np.pi / H
@@ -112,29 +199,98 @@ class Environment(eqx.Module):
         col_cdf[:, -1] = 1.0
         return cls(jnp.asarray(img, jnp.float32), jnp.asarray(row_cdf), jnp.asarray(col_cdf), jnp.asarray(p))
 
-    def lookup(self, d):
-        """Radiance (..., 3) in world directions ``d`` (..., 3)."""
+    def _pixel(self, d):
+        """Row and column ``(i, j)`` of the pixels seen in world directions ``d`` (..., 3)."""
         H, W = self.image.shape[:2]
         th = jnp.arccos(jnp.clip(d[..., 1], -1, 1))
         ph = jnp.mod(jnp.arctan2(d[..., 2], d[..., 0]), 2 * jnp.pi)
         i = jnp.clip((th / jnp.pi * H).astype(jnp.int32), 0, H - 1)
         j = jnp.clip((ph / (2 * jnp.pi) * W).astype(jnp.int32), 0, W - 1)
-        return self.image[i, j]
+        return i, j
 
-    def pdf(self, d):
-        """Solid-angle density of :meth:`sample` at ``d``."""
+    def _density(self, i, j):
+        """Solid-angle density of drawing pixel ``(i, j)``: its probability over its solid angle."""
         H, W = self.image.shape[:2]
-        th = jnp.arccos(jnp.clip(d[..., 1], -1, 1))
-        ph = jnp.mod(jnp.arctan2(d[..., 2], d[..., 0]), 2 * jnp.pi)
-        i = jnp.clip((th / jnp.pi * H).astype(jnp.int32), 0, H - 1)
-        j = jnp.clip((ph / (2 * jnp.pi) * W).astype(jnp.int32), 0, W - 1)
         # a pixel spans d(cos theta) d(phi) of solid angle
         t0, t1 = i * (jnp.pi / H), (i + 1) * (jnp.pi / H)
         area = (jnp.cos(t0) - jnp.cos(t1)) * (2 * jnp.pi / W)
         return self.pixel_p[i, j] / area
 
+    def lookup(self, d):
+        """Radiance (..., 3) in world directions ``d`` (..., 3).
+
+        Parameters
+        ----------
+        d : jax.Array, (..., 3)
+            Unit directions, world frame.
+
+        Returns
+        -------
+        jax.Array, (..., 3)
+            The radiance of the pixel each direction falls in.
+
+        Examples
+        --------
+        >>> import jax.numpy as jnp
+        >>> from matfit.render import Environment, sky_map
+        >>> env = Environment.of(sky_map((16, 32)))
+        >>> zenith, nadir = env.lookup(jnp.array([[0.0, 1.0, 0.0], [0.0, -1.0, 0.0]]))
+        >>> bool(zenith[2] > nadir[2])                            # blue sky above, brown ground below
+        True
+        """
+        i, j = self._pixel(d)
+        return self.image[i, j]
+
+    def pdf(self, d):
+        """Solid-angle density of :meth:`sample` at ``d``.
+
+        Parameters
+        ----------
+        d : jax.Array, (..., 3)
+            Unit directions in the world frame, e.g. drawn by :meth:`sample` or by a BSDF.
+
+        Returns
+        -------
+        jax.Array, (...,)
+            The density per steradian.
+
+        Examples
+        --------
+        >>> import jax.numpy as jnp
+        >>> import numpy as np
+        >>> from matfit.render import Environment
+        >>> env = Environment.of(np.ones((4, 8, 3), np.float32))   # uniform: 1 / (4 pi) everywhere
+        >>> round(float(env.pdf(jnp.array([1.0, 0.0, 0.0])) * 4 * np.pi), 5)
+        1.0
+        """
+        return self._density(*self._pixel(d))
+
     def sample(self, u1, u2):
-        """``(d, pdf)``: a direction drawn with density proportional to luminance."""
+        """``(d, pdf)``: a direction drawn with density proportional to luminance.
+
+        Parameters
+        ----------
+        u1, u2 : jax.Array, (...,)
+            Uniform numbers in [0, 1): ``u1`` picks the row, ``u2`` the column.
+
+        Returns
+        -------
+        d : jax.Array, (..., 3)
+            Unit directions, world frame.
+        pdf : jax.Array, (...,)
+            Their solid-angle density (that of :meth:`pdf`).
+
+        Examples
+        --------
+        >>> import jax.numpy as jnp
+        >>> import numpy as np
+        >>> from matfit.render import Environment
+        >>> image = np.zeros((4, 8, 3), np.float32); image[1, 2] = 100.0    # one bright pixel
+        >>> env = Environment.of(image)
+        >>> d, pdf = env.sample(jnp.array([0.5]), jnp.array([0.5]))
+        >>> env.lookup(d).tolist(), bool(jnp.allclose(pdf, env.pdf(d)))
+        ([[100.0, 100.0, 100.0]], True)
+        """
         H, W = self.image.shape[:2]
         i = jnp.clip(jnp.searchsorted(self.row_cdf, u1, side="right") - 1, 0, H - 1)
         r0, r1 = self.row_cdf[i], self.row_cdf[i + 1]
@@ -150,10 +306,28 @@ class Environment(eqx.Module):
         st = jnp.sqrt(jnp.maximum(1 - ct * ct, 0))
         ph = (j + v2) * (2 * jnp.pi / W)
         d = jnp.stack([st * jnp.cos(ph), ct, st * jnp.sin(ph)], -1)
-        area = (jnp.cos(t0) - jnp.cos(t1)) * (2 * jnp.pi / W)
-        return d, self.pixel_p[i, j] / area
+        return d, self._density(i, j)
 
 
 def jax_searchsorted_rows(cdf, u):
-    """Per-element ``searchsorted(cdf[k], u[k], side="right")`` for rows ``cdf`` (..., W + 1)."""
+    """Per-element ``searchsorted(cdf[k], u[k], side="right")`` for rows ``cdf`` (..., W + 1).
+
+    Parameters
+    ----------
+    cdf : jax.Array, (..., W + 1)
+        Non-decreasing rows.
+    u : jax.Array, (...,)
+        One value per row.
+
+    Returns
+    -------
+    jax.Array of int, (...,)
+        The number of entries of each row that are <= its value.
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> jax_searchsorted_rows(jnp.array([[0.0, 0.5, 1.0], [0.0, 0.1, 1.0]]), jnp.array([0.6, 0.05])).tolist()
+    [2, 1]
+    """
     return jnp.sum(cdf <= u[..., None], axis=-1)

@@ -53,6 +53,14 @@ class RenderStats:
         Of those, pairs with ``wi`` below the surface (zero for models that do not transmit).
     env_lookups : int
         Environment radiance lookups (zero for the furnace).
+
+    Examples
+    --------
+    >>> from matfit.models import Lambert
+    >>> from matfit.render import render_sphere
+    >>> _, stats = render_sphere(Lambert(0.5), "furnace", size=8, spp=2, return_stats=True)
+    >>> stats.bsdf_samples, stats.env_samples, stats.env_lookups   # 52 pixels inside, 2 samples each
+    (104, 0, 0)
     """
 
     bsdf_samples: int
@@ -232,11 +240,25 @@ def _below_count(env, frames, spp, seed):
 def tonemap(img, exposure=1.0):
     """Linear radiance -> 8-bit sRGB (clipped), as a (H, W, 3) uint8 array.
 
+    Parameters
+    ----------
+    img : array_like, (H, W, 3)
+        Linear radiance.
+    exposure : float, default 1
+        Factor applied before clipping to [0, 1].
+
+    Returns
+    -------
+    numpy.ndarray, (H, W, 3) uint8
+        sRGB-encoded codes.
+
     Examples
     --------
     >>> import numpy as np
     >>> tonemap(np.ones((1, 1, 3)))[0, 0].tolist()
     [255, 255, 255]
+    >>> tonemap(np.full((1, 1, 3), 0.5), exposure=0.5)[0, 0].tolist()   # linear 0.25 is sRGB 137
+    [137, 137, 137]
     """
     x = np.clip(np.asarray(img, np.float64) * exposure, 0, 1)
     s = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
@@ -244,7 +266,30 @@ def tonemap(img, exposure=1.0):
 
 
 def save_png(path, img, exposure=1.0):
-    """Write a tone-mapped sRGB PNG of linear ``img`` (matplotlib's writer)."""
+    """Write a tone-mapped sRGB PNG of linear ``img`` (matplotlib's writer).
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The file to write (parent folders are created).
+    img : array_like, (H, W, 3)
+        Linear radiance (:func:`tonemap` encodes it).
+    exposure : float, default 1
+
+    Returns
+    -------
+    Path
+        The PNG written.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> import numpy as np
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     p = save_png(f"{d}/previews/grey.png", np.full((4, 6, 3), 0.18))
+    ...     p.name, p.read_bytes()[:8] == b"\\x89PNG\\r\\n\\x1a\\n"
+    ('grey.png', True)
+    """
     import matplotlib
 
     matplotlib.use("Agg")
@@ -259,11 +304,29 @@ def save_png(path, img, exposure=1.0):
 def image_ciede2000(a, b):
     """Mean CIEDE2000 between two linear sRGB images (``colour.delta_E``).
 
+    Parameters
+    ----------
+    a, b : array_like, (..., 3)
+        Linear sRGB (negative values clipped to 0), converted to CIE L*a*b* through XYZ.
+
+    Returns
+    -------
+    float
+        The mean colour difference over the pixels.
+
+    References
+    ----------
+    G. Sharma, W. Wu, E. N. Dalal, "The CIEDE2000 color-difference formula: implementation
+    notes, supplementary test data, and mathematical observations", Color Research &
+    Application 30(1), 2005.
+
     Examples
     --------
     >>> import numpy as np
     >>> image_ciede2000(np.full((2, 2, 3), 0.5), np.full((2, 2, 3), 0.5))
     0.0
+    >>> bool(image_ciede2000(np.full((2, 2, 3), 0.5), np.full((2, 2, 3), 0.55)) > 1)   # visible
+    True
     """
     import colour
 
