@@ -15,6 +15,8 @@ Typical use::
 
 Scripts import it as ``from _common import ...`` (the ``benchmarks/`` directory is on ``sys.path`` when a
 script there is run directly) or as ``from benchmarks._common import ...`` from the repository root.
+Importing it puts the repository root on ``sys.path`` (``REPO_ROOT``): the numpy references and
+baselines (``numpy_ref``, shared with the tests) live there.
 """
 from __future__ import annotations
 
@@ -29,6 +31,10 @@ import sys
 import time
 from pathlib import Path
 from typing import Any, Callable
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+if str(REPO_ROOT) not in sys.path:
+    sys.path.insert(0, str(REPO_ROOT))
 
 # Where results go: benchmarks/results/, or the folder named by MATFIT_BENCH_RESULTS (a GPU run writes
 # there so that its figures do not overwrite this machine's).

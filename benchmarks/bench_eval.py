@@ -2,10 +2,11 @@
 
 For each model, N direction pairs (default 10^6) are evaluated by
 
-* ``numpy``: the independent numpy reference of ``tests/reference.py`` (float64; complex-arithmetic
-  Fresnel), or a numpy version written from the documented formulas where the reference has none
-  (plastic, blend, coated conductor); for the GGX conductor also ``numpy_lean``, a lean vectorized
-  numpy version in real arithmetic (the fastest numpy we could write) as a second baseline;
+* ``numpy``: the independent numpy reference ``numpy_ref`` (at the repository root, shared with the
+  tests; float64, complex-arithmetic Fresnel; the smooth plastic and the smooth-coated conductor
+  from their documented closed forms); for the GGX conductor also ``numpy_lean``, the vectorized
+  baseline of the fitting benchmarks (``numpy_ref.conductor_ggx``: GGX in Cartesian form,
+  real-arithmetic Fresnel) as a second baseline;
 * ``eval``: ``jax.jit(model.eval)`` on ``(N, 3)`` arrays on one device (the plain user path);
 * ``soa``: :func:`matfit.fast.eval_soa` (structure of arrays, one kernel per channel, the batch
   split over ``--devices`` host devices, default 1: one device already uses every core);
@@ -38,8 +39,6 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(HERE.parent / "tests"))
-sys.path.insert(0, str(HERE.parent))
 
 from _common import RESULTS_DIR, interleaved, machine_info, print_table, rate, time_jax, write_json  # noqa: E402
 
@@ -47,69 +46,6 @@ from _common import RESULTS_DIR, interleaved, machine_info, print_table, rate, t
 AU_ETA = [0.143036, 0.375307, 1.44205]
 AU_K = [3.983, 2.38556, 1.60336]
 ALBEDO = [0.8, 0.5, 0.2]
-
-
-# --------------------------------------------------------------------------------------------------
-# numpy versions written from the formulas (for models tests/reference.py does not cover)
-
-def np_plastic_smooth(R, wo, wi, albedo, eta):
-    """Smooth plastic, internal reflection summed (docs/models.md):
-    f = T(mu_o) T(mu_i) rho / (pi eta^2 (1 - rho R_int)), T = 1 - F, R_int = 1 - (1 - Fbar(eta)) / eta^2."""
-    albedo = np.asarray(albedo, float)
-    To = 1 - R.fresnel_dielectric(wo[:, 2], eta)
-    Ti = 1 - R.fresnel_dielectric(wi[:, 2], eta)
-    r_int = 1 - (1 - R.fresnel_dielectric_average(eta)) / eta**2
-    f = (To * Ti)[:, None] * albedo / (np.pi * eta**2 * (1 - albedo * r_int))
-    ok = (wo[:, 2] > 0) & (wi[:, 2] > 0)
-    return np.where(ok[:, None], f, 0.0)
-
-
-def _np_inner(w, eta):
-    """Direction inside a smooth coat of index eta, pointing up, for an outside direction w."""
-    s = w[:, :2] / eta
-    z = np.sqrt(np.maximum(1 - np.sum(s * s, axis=1), 0))
-    return np.concatenate([s, z[:, None]], axis=1)
-
-
-def np_coated_conductor(R, wo, wi, dist, eta_b, k_b, eta_c):
-    """Smooth coat over a rough conductor, no absorption (Weidlich-Wilkie, docs/models.md):
-    f = T(mu_o) T(mu_i) / eta_c^2 * f_base(wo', wi') with the base's index relative to the coat."""
-    To = 1 - R.fresnel_dielectric(wo[:, 2], eta_c)
-    Ti = 1 - R.fresnel_dielectric(wi[:, 2], eta_c)
-    fb = R.conductor_eval(_np_inner(wo, eta_c), _np_inner(wi, eta_c), dist,
-                          np.asarray(eta_b) / eta_c, np.asarray(k_b) / eta_c)
-    ok = (wo[:, 2] > 0) & (wi[:, 2] > 0)
-    return np.where(ok[:, None], (To * Ti)[:, None] / eta_c**2 * fb, 0.0)
-
-
-def np_conductor_ggx_lean(wo, wi, alpha, eta, k):
-    """GGX Cook-Torrance conductor in plain vectorized numpy, real arithmetic, no guards beyond
-    the validity mask: the fastest straightforward numpy we could write (a second baseline)."""
-    h = wo + wi
-    h /= np.linalg.norm(h, axis=1, keepdims=True)
-    a2 = alpha * alpha
-    hz2 = h[:, 2] ** 2
-    D = 1 / (np.pi * a2 * ((1 - hz2) / a2 + hz2) ** 2)
-
-    def lam(v):
-        t = a2 * (1 - v[:, 2] ** 2) / v[:, 2] ** 2
-        return t / (2 * (1 + np.sqrt(1 + t)))
-
-    G = 1 / ((1 + lam(wo)) * (1 + lam(wi)))
-    c = np.sum(wo * h, axis=1)[:, None]
-    eta, k = np.asarray(eta), np.asarray(k)
-    c2 = c * c
-    s2 = 1 - c2
-    t0 = eta**2 - k**2 - s2
-    a2b2 = np.sqrt(t0 * t0 + 4 * eta**2 * k**2)
-    a = np.sqrt(0.5 * (a2b2 + t0))
-    t1 = a2b2 + c2
-    t2 = 2 * a * c
-    rs = (t1 - t2) / (t1 + t2)
-    t3 = c2 * a2b2 + s2 * s2
-    t4 = t2 * s2
-    F = 0.5 * rs * (1 + (t3 - t4) / (t3 + t4))
-    return (D * G / (4 * wo[:, 2] * wi[:, 2]))[:, None] * F
 
 
 # --------------------------------------------------------------------------------------------------
@@ -141,7 +77,7 @@ def model_specs(jnp, M, R):
          {"type": "roughdielectric", "distribution": "ggx", "alpha": 0.2, "int_ior": 1.5, "ext_ior": 1.0},
          "one channel; reflection and transmission"),
         ("plastic_smooth", lambda dt: M.Plastic(A(ALBEDO, dt), 0.0, A(1.5, dt)), "refl",
-         lambda wo, wi: np_plastic_smooth(R, wo, wi, ALBEDO, 1.5),
+         lambda wo, wi: R.plastic_smooth_eval(wo, wi, ALBEDO, 1.5),
          {"type": "plastic", "diffuse_reflectance": rgb(ALBEDO), "int_ior": 1.5, "ext_ior": 1.0, "nonlinear": True},
          "Mitsuba's internal Fresnel average is a polynomial fit"),
         ("plastic_rough", lambda dt: M.Plastic(A(ALBEDO, dt), A(0.1, dt), A(1.5, dt)), "refl", None,
@@ -154,7 +90,7 @@ def model_specs(jnp, M, R):
          + 0.3 * R.conductor_eval(wo, wi, R.Dist("ggx", 0.2), AU_ETA, AU_K),
          {"type": "blendbsdf", "weight": 0.3, "bsdf_0": mi_diffuse, "bsdf_1": mi_cond("ggx")}, ""),
         ("coated_conductor", lambda dt: M.CoatedConductor(A(0.2, dt), A(AU_ETA, dt), A(AU_K, dt), 0.0, A(1.5, dt)),
-         "refl", lambda wo, wi: np_coated_conductor(R, wo, wi, R.Dist("ggx", 0.2), AU_ETA, AU_K, 1.5), None,
+         "refl", lambda wo, wi: R.coated_conductor_smooth_eval(wo, wi, R.Dist("ggx", 0.2), AU_ETA, AU_K, 1.5), None,
          "smooth coat over GGX gold; no Mitsuba equivalent"),
         ("stochastic_layered", lambda dt: M.StochasticLayered(M.SmoothDielectric(A(1.5, dt)), M.Lambert(A(ALBEDO, dt)),
                                                               n_samples=64, max_depth=8), "refl", None, None,
@@ -278,7 +214,7 @@ def main(argv=None):
     import jax.numpy as jnp
 
     import matfit.models as M
-    import reference as R
+    import numpy_ref as R
     from matfit.fast import _soa_kernel, eval_soa, soa_pairs, supports_soa
 
     mit, mit_note = load_mitsuba(not args.no_mitsuba, args.mitsuba_variant)
@@ -306,7 +242,7 @@ def main(argv=None):
             fns["numpy"] = lambda f=np_fn, a=wo_np, b=wi_np: f(a, b)
             values["numpy"] = np_fn(wo, wi) if n_np == n else None
         if name == "conductor_ggx":
-            fns["numpy_lean"] = lambda a=wo[:n_np], b=wi[:n_np]: np_conductor_ggx_lean(a, b, 0.2, AU_ETA, AU_K)
+            fns["numpy_lean"] = lambda a=wo[:n_np], b=wi[:n_np]: R.conductor_ggx(a, b, 0.2, AU_ETA, AU_K)
         for dname, dt in (("f32", jnp.float32), ("f64", jnp.float64)):
             model = make(dt)
             a, b = jnp.asarray(wo, dt), jnp.asarray(wi, dt)
@@ -337,7 +273,7 @@ def main(argv=None):
                          "eval_f64": "the same in float64",
                          "soa_f32": "matfit.fast.eval_soa(model, pairs), pairs = soa_pairs(wo, wi) prepared once "
                                     "(tuned: a fit's cached pairs)",
-                         "numpy": "the numpy reference (tests/reference.py or this file), float64",
+                         "numpy": "the numpy reference (numpy_ref), float64",
                          "mitsuba": "mi.load_dict(d).eval(ctx, si, wi) (llvm_ad_rgb; best of plain and drjit.freeze)"}}
         for k, s in stats.items():
             nn = n_np if k.startswith("numpy") else n

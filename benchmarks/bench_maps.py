@@ -6,7 +6,7 @@
   default float32); first call (compilation included) and the median of warm calls; the CLI
   ``matfit fit-map CAPTURE -o DIR --quiet`` timed as a process (persistent compile cache on).
 * **baseline**, same run: ``scipy.optimize.least_squares`` (trf, 2-point Jacobian) on the numpy
-  model (``benchmarks/_numpy_models.py``), relative residuals, texel after texel from the same
+  model (``numpy_ref.diffuse_specular_ggx``), relative residuals, texel after texel from the same
   data-driven starts, on the first ``--scipy-texels`` texels.
 * **memory**: a 4096 x 4096 x 24 x 3 float32 value array on disk (``numpy.lib.format.open_memmap``,
   4.8 GB; only the fitted rows are rendered, the rest of the file stays a hole), fitted with a
@@ -46,8 +46,9 @@ def child_throughput(size, repeats, scipy_texels, workdir):
     import numpy as np
     from scipy.optimize import least_squares
 
-    import _numpy_models as nm
     from _common import summarize
+
+    import numpy_ref as R
     from data_synth.capture import ramp_maps, render_capture
     from matfit.fitting import Parametrization, guesses_from_arrays
     from matfit.maps import fit_map, load_capture
@@ -92,7 +93,7 @@ def child_throughput(size, repeats, scipy_texels, workdir):
 
         def res(z):
             th = theta(z)
-            return ((nm.diffuse_specular_eval(wo, wi, th[0:3], th[3:6], th[6]) - y) / (np.abs(y) + 1e-3)).ravel()
+            return ((R.diffuse_specular_ggx(wo, wi, th[0:3], th[3:6], th[6]) - y) / (np.abs(y) + 1e-3)).ravel()
 
         sol = least_squares(res, z0, method="trf", max_nfev=64 * 8)
         theirs.append(sol.cost)

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import platform
-import time
 
 import jax
 
@@ -22,23 +21,17 @@ jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-from _common import RESULTS_DIR  # noqa: E402  (benchmarks/ is on sys.path for a script run directly)
+from _common import RESULTS_DIR, time_jax  # noqa: E402  (benchmarks/ is on sys.path for a script run directly)
 from matfit.models import Lambert, Plastic, RoughDielectric, SmoothDielectric, StochasticLayered  # noqa: E402
 
 WO = jnp.array([[0.0, 0.0, 1.0], [np.sin(1.0), 0.0, np.cos(1.0)]])
 WI = jnp.array([[0.3, 0.2, np.sqrt(1 - 0.13)], [-0.5, 0.1, np.sqrt(1 - 0.26)]])
 
 
-def timed(fn, *args, repeats=3):
-    t0 = time.perf_counter()
-    out = jax.block_until_ready(fn(*args))
-    first = time.perf_counter() - t0
-    runs = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        out = jax.block_until_ready(fn(*args))
-        runs.append(time.perf_counter() - t0)
-    return out, first - min(runs), float(np.median(runs))
+def timed(fn, *args):
+    """(result, compile s, median warm run s) of a jitted function (benchmarks/_common.time_jax)."""
+    t = time_jax(fn, *args, repeat=3)
+    return t["result"], t["compile_s"], t["median_s"]
 
 
 def main():

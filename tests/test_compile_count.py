@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import monitoring
 
-import reference as R
+import numpy_ref as R
 from matfit import Table
 from matfit.fast import eval_soa, soa_pairs
 from matfit.fitting import fit

@@ -6,8 +6,8 @@
 sampled by a mixture of the cosine hemisphere (probability p_d = mean(albedo) / (mean(albedo) +
 mean(f0))) and the lobe's visible normals (or D cos).
 
-1. eval and pdf against an independent numpy reference (GGX written out below from the formula;
-   Beckmann through tests/reference.py), RGB and broadcast channels, both masking forms.
+1. eval and pdf against the independent numpy reference (numpy_ref: GGX in Cartesian form,
+   Beckmann in spherical form), RGB and broadcast channels, both masking forms.
 2. Helmholtz reciprocity.
 3. int pdf d omega over the hemisphere, for wo down to cos 0.1 and alpha 0.05 .. 0.8, against
    p_d + (1 - p_d) S, S the probability that a sampled microfacet reflects wo above the horizon
@@ -45,13 +45,15 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import catalogue as C  # noqa: E402
 import chi2 as c2  # noqa: E402
-import reference as R  # noqa: E402
+import numpy_ref as R  # noqa: E402
+from catalogue import unit  # noqa: E402
+from numpy_ref import COS_EPS  # noqa: E402  (matfit._math.COS_EPS, restated: the contract's horizon threshold)
 
 from matfit.errors import ParameterError  # noqa: E402
 from matfit.models import DiffuseSpecular  # noqa: E402
 
-COS_EPS = 1e-7  # matfit._math.COS_EPS, restated (the contract's horizon threshold)
 RGB_ALB = (0.5, 0.3, 0.2)
 RGB_F0 = (0.04, 0.5, 0.9)
 
@@ -64,74 +66,27 @@ def _seed(*parts):
     return zlib.crc32("|".join(map(str, parts)).encode())
 
 
-def unit(z, phi):
-    z = np.asarray(z, np.float64)
-    s = np.sqrt(np.maximum(0.0, 1 - z * z))
-    return np.stack([s * np.cos(phi), s * np.sin(phi), z], -1)
-
-
 # ------------------------------------------------------------------------------------------------
-# Independent numpy reference (float64), written from the formula of the module docstring
+# The reference (numpy_ref), in this file's argument order
 # ------------------------------------------------------------------------------------------------
-def ggx_D(h, ax, ay):
-    """Anisotropic GGX: D(h) = 1 / (pi ax ay (hx^2/ax^2 + hy^2/ay^2 + hz^2)^2), 0 for hz <= 0."""
-    q = h[..., 0] ** 2 / ax**2 + h[..., 1] ** 2 / ay**2 + h[..., 2] ** 2
-    return np.where(h[..., 2] > 0, 1.0 / (np.pi * ax * ay * q * q), 0.0)
-
-
-def ggx_Lambda(v, ax, ay):
-    """Smith Lambda of GGX: (-1 + sqrt(1 + a^2 tan^2)) / 2 with a^2 tan^2 = (ax^2 vx^2 + ay^2 vy^2) / vz^2."""
-    t = (ax**2 * v[..., 0] ** 2 + ay**2 * v[..., 1] ** 2) / v[..., 2] ** 2
-    return t / (2.0 * (1.0 + np.sqrt(1.0 + t)))  # = (-1 + sqrt(1 + t)) / 2 without cancellation
-
-
-def schlick(c, f0):
-    return f0 + (1.0 - f0) * (1.0 - c) ** 5
-
-
-def ref_lobe(wo, wi, kind, masking, ax, ay):
-    """D G2 / (4 cos_o cos_i) for upper-hemisphere pairs (reflection: wo.h, wi.h > 0 there)."""
-    h = wo + wi
-    h = h / np.linalg.norm(h, axis=-1, keepdims=True)
-    if kind == "ggx":
-        D = ggx_D(h, ax, ay)
-        lo, li = ggx_Lambda(wo, ax, ay), ggx_Lambda(wi, ax, ay)
-        G2 = 1.0 / ((1.0 + lo) * (1.0 + li)) if masking == "separable" else 1.0 / (1.0 + lo + li)
-    else:  # Beckmann: tests/reference.py's distribution (erfcx form of Lambda)
-        d = R.Dist(kind, ax, ay)
-        D, G2 = d.D(h), d.G2(wo, wi, h, masking)
-    return D * G2 / (4.0 * wo[..., 2] * wi[..., 2]), h
+def ref_dist(kind, ax, ay):
+    """GGX in Cartesian form (the formula of the module docstring), the others in spherical form."""
+    return R.GGXCartesian(ax, ay) if kind == "ggx" else R.Dist(kind, ax, ay)
 
 
 def ref_eval(wo, wi, albedo, f0, alpha, kind="ggx", masking="separable", alpha_y=None):
-    wo, wi = np.asarray(wo, np.float64), np.asarray(wi, np.float64)
-    albedo, f0 = np.atleast_1d(np.asarray(albedo, np.float64)), np.atleast_1d(np.asarray(f0, np.float64))
-    ay = alpha if alpha_y is None else alpha_y
-    ok = (wo[..., 2] > 0) & (wi[..., 2] > 0)
-    with np.errstate(all="ignore"):
-        spec, h = ref_lobe(wo, wi, kind, masking, alpha, ay)
-        F = schlick(np.sum(wo * h, -1)[..., None], f0)
-        f = albedo / np.pi + spec[..., None] * F
-    return np.where(ok[..., None], f, 0.0)
-
-
-def p_diffuse(albedo, f0):
-    a, s = float(np.mean(albedo)), float(np.mean(f0))
-    return 0.5 if a + s == 0 else a / (a + s)
+    return R.diffuse_specular_eval(wo, wi, albedo, f0, ref_dist(kind, alpha, alpha_y), masking)
 
 
 def ref_pdf(wo, wi, albedo, f0, alpha, kind="ggx", alpha_y=None, sampling="visible"):
-    """p_d cos_i / pi + (1 - p_d) pdf_m(h) / (4 wo.h), pdf_m of visible normals (or D cos)."""
-    pd = p_diffuse(albedo, f0)
-    d = R.Dist(kind, alpha, alpha_y)
-    return pd * R.lambert_pdf(wo, wi) + (1 - pd) * R.conductor_pdf(wo, wi, d, sampling)
+    return R.diffuse_specular_pdf(wo, wi, albedo, f0, R.Dist(kind, alpha, alpha_y), sampling)
 
 
-def rel(a, b, floor=1e-300):
-    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
-    with np.errstate(all="ignore"):
-        e = np.abs(a - b) / np.maximum(np.abs(b), floor)
-    return np.where(a == b, 0.0, e)
+p_diffuse = R.diffuse_probability
+
+
+def rel(a, b):
+    return R.rel_err(a, b, 1e-300)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -190,11 +145,12 @@ def test_eval_and_pdf_match_reference(case, x64, rng):
 
 
 def test_alpha_y_none_is_alpha_y_equal_alpha(x64, rng):
-    wo, wi = R.random_directions(rng, 200, "upper", 0.01), R.random_directions(rng, 200, "upper", 0.01)
+    wo, wi = C.random_pairs(rng, 200, 0.01)
     m0 = DiffuseSpecular(j(RGB_ALB), j(RGB_F0), j(0.3))
     m1 = DiffuseSpecular(j(RGB_ALB), j(RGB_F0), j(0.3), alpha_y=j(0.3))
     m2 = DiffuseSpecular(j(RGB_ALB), j(RGB_F0), j(0.3), alpha_y=j(0.31))
     f0, f1, f2 = (np.asarray(m.eval(j(wo), j(wi))) for m in (m0, m1, m2))
+    assert np.all(np.isfinite(f2))
     np.testing.assert_allclose(f0, f1, rtol=1e-12)
     assert rel(f2, f0).max() > 1e-4  # alpha_y is not ignored
 
@@ -207,7 +163,7 @@ def test_alpha_y_none_is_alpha_y_equal_alpha(x64, rng):
 @pytest.mark.parametrize("kind", ["ggx", "beckmann"])
 def test_reciprocity(kind, masking, alpha_y, x64, rng):
     n = 200
-    wo, wi = R.random_directions(rng, n, "both", 0.01), R.random_directions(rng, n, "both", 0.01)
+    wo, wi = C.random_pairs(rng, n, 0.01, "both")
     model = DiffuseSpecular(j(RGB_ALB), j(RGB_F0), j(0.4), distribution=kind, masking=masking,
                             alpha_y=None if alpha_y is None else j(alpha_y))
     f1, f2 = np.asarray(model.eval(j(wo), j(wi))), np.asarray(model.eval(j(wi), j(wo)))
@@ -452,6 +408,19 @@ def directional_albedo(model, wo, method="quadrature", n=None, key=None):
     return np.asarray(_albedo_jit(model, j(wo), method, n, key))
 
 
+def _panels(breaks, order):
+    """Composite Gauss-Legendre rule (nodes, weights) of ``order`` points on each panel between
+    the sorted distinct ``breaks`` (panels shorter than 1e-12 left out)."""
+    x, w = np.polynomial.legendre.leggauss(order)
+    b = sorted(set(breaks))
+    nodes, weights = [], []
+    for a0, a1 in zip(b[:-1], b[1:]):
+        if a1 - a0 > 1e-12:
+            nodes.append(0.5 * (a1 - a0) * x + 0.5 * (a0 + a1))
+            weights.append(0.5 * (a1 - a0) * w)
+    return np.concatenate(nodes), np.concatenate(weights)
+
+
 def ref_lobe_albedo(mu_o, f0, alpha, kind="ggx", masking="separable", n_gl=48, n_phi=192):
     """int D G2 F_s / (4 cos_o) d omega_i over the upper hemisphere (float64 quadrature with
     panel breaks that resolve a lobe of width alpha around the mirror direction: the rule is
@@ -459,25 +428,11 @@ def ref_lobe_albedo(mu_o, f0, alpha, kind="ggx", masking="separable", n_gl=48, n
     wo = unit(mu_o, 0.0)
     # quadrature on the hemisphere in wi; theta panels broken at the mirror direction's theta
     th_m = math.acos(mu_o)
-    breaks = sorted({0.0, math.pi / 2, *[min(max(th_m + s * alpha * 2.0**k, 0.0), math.pi / 2)
-                                          for s in (-1, 1) for k in range(-3, 5)], th_m})
-    x, w = np.polynomial.legendre.leggauss(n_gl)
-    th, wt = [], []
-    for a0, a1 in zip(breaks[:-1], breaks[1:]):
-        if a1 - a0 > 1e-12:
-            th.append(0.5 * (a1 - a0) * x + 0.5 * (a0 + a1))
-            wt.append(0.5 * (a1 - a0) * w)
-    th, wt = np.concatenate(th), np.concatenate(wt)
+    th, wt = _panels([0.0, math.pi / 2, th_m, *[min(max(th_m + s * alpha * 2.0**k, 0.0), math.pi / 2)
+                                                 for s in (-1, 1) for k in range(-3, 5)]], n_gl)
     # phi panels broken around the mirror azimuth (pi)
-    pb = sorted({0.0, 2 * math.pi, *[math.pi + s * min(alpha * 2.0**k, math.pi) for s in (-1, 1)
-                                     for k in range(-3, 5)]})
-    xp, wp = np.polynomial.legendre.leggauss(n_phi // 16)
-    ph, wph = [], []
-    for a0, a1 in zip(pb[:-1], pb[1:]):
-        if a1 - a0 > 1e-12:
-            ph.append(0.5 * (a1 - a0) * xp + 0.5 * (a0 + a1))
-            wph.append(0.5 * (a1 - a0) * wp)
-    ph, wph = np.concatenate(ph), np.concatenate(wph)
+    ph, wph = _panels([0.0, 2 * math.pi, *[math.pi + s * min(alpha * 2.0**k, math.pi) for s in (-1, 1)
+                                           for k in range(-3, 5)]], n_phi // 16)
     T, P = np.meshgrid(th, ph, indexing="ij")
     W = (wt * np.sin(th) * np.cos(th))[:, None] * wph[None, :]
     wi = np.stack([np.sin(T) * np.cos(P), np.sin(T) * np.sin(P), np.cos(T)], -1).reshape(-1, 3)
@@ -553,30 +508,21 @@ def test_albedo_method_is_not_shadowed(x64):
 # ------------------------------------------------------------------------------------------------
 Z_ABOVE = [1e-4, 1e-3, 0.5, 1.0]
 Z_BELOW = [-1e-4, -0.5, -1.0, 0.0]
-HARD_ALPHAS = [0.0, 1e-8, 1e-4, 1e-3, 0.3, 1.0]
+HARD_ALPHAS = C.ALPHA_NEAR_ZERO + (0.3, 1.0)
 HARD_PARAMS = [(a, alb, f0) for a in HARD_ALPHAS for alb, f0 in ((RGB_ALB, RGB_F0), ((0.0,) * 3, (1.0,) * 3),
                                                                  ((1.0,) * 3, (0.0,) * 3))]
 
 
 def hard_pairs():
-    """(wo, wi, below): the hard-case pairs of tests/test_hard_cases.py (every pair of z in
-    Z_ABOVE + Z_BELOW, mirror plane and pi/3, wo == wi and wo == -wi)."""
-    from test_hard_cases import pairs
-
-    wo, wi = pairs(Z_ABOVE + Z_BELOW)
+    """(wo, wi, below): the catalogue's hard-case pairs (every pair of z in Z_ABOVE + Z_BELOW,
+    mirror plane and pi/3, wo == wi and wo == -wi)."""
+    wo, wi = C.pairs(Z_ABOVE + Z_BELOW)
     below = (wo[:, 2] <= 0) | (wi[:, 2] <= 0)
     return wo, wi, below
 
 
 def hard_samples():
-    corners = [(a, b, c) for a in (0.0, 1 - 2.0**-24) for b in (0.0, 1 - 2.0**-24) for c in (0.0, 1 - 2.0**-24)]
-    corners += [(0.5, 0.5, 0.5), (0.3, 0.7, 0.1), (0.9, 0.2, 0.6)]
-    wo, u = [], []
-    for zo in Z_ABOVE + Z_BELOW:
-        for c in corners:
-            wo.append(unit(zo, 0.2))
-            u.append(c)
-    return np.array(wo), np.array(u)
+    return C.sample_inputs(Z_ABOVE + Z_BELOW, C.U_CORNERS + C.U_EXTRA[:3])
 
 
 def _build(p):
@@ -679,7 +625,7 @@ def test_hard_cases_values(dtn, x64):
 
 
 def test_gradients_match_finite_differences(x64, rng):
-    wo, wi = R.random_directions(rng, 30, "upper", 0.15), R.random_directions(rng, 30, "upper", 0.15)
+    wo, wi = C.random_pairs(rng, 30)
     W0, W1 = j(wo), j(wi)
     base = dict(albedo=np.array(RGB_ALB), f0=np.array(RGB_F0), alpha=np.array(0.35))
 

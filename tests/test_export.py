@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import reference as R
+import numpy_ref as R
 from matfit.errors import DataFormatError, ParameterError
 from matfit.export import (describe_model, export, load_model, model_from_description, relative_rmse, save_model, to_gltf,
                            to_materialx, to_mitsuba, to_mitsuba_xml, to_pbrt)

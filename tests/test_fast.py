@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import reference as R
+import numpy_ref as R
 from matfit._math import IsoDir, Vec3, dot, normalize, reflect
 from matfit.errors import MatfitError, ParameterError
 from matfit.fast import channel_model, eval_soa, soa_pairs, supports_soa

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from colour.phenomena import polarised_light_reflection_coefficient
 
-import reference as R
+import numpy_ref as R
 
 
 def tol(dtype):

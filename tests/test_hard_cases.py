@@ -20,68 +20,21 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from matfit.errors import ParameterError  # noqa: E402
-from matfit.models import (  # noqa: E402
-    Blend,
-    CoatedConductor,
-    Lambert,
-    Plastic,
-    RoughConductor,
-    RoughDielectric,
-    SmoothConductor,
-    SmoothDielectric,
-)
+import catalogue as C
+from catalogue import ONE_M, Z_DIEL, Z_REFL, pairs, sample_inputs, unit
+from matfit.errors import ParameterError
+from matfit.models import Blend, CoatedConductor, Lambert, Plastic, RoughConductor, RoughDielectric
+from matfit.models import SmoothConductor, SmoothDielectric
+from numpy_ref import COS_EPS
 
-COS_EPS = 1e-7
+# The inputs are the catalogue's hard cases (tests/catalogue.py): the direction sets Z_REFL /
+# Z_DIEL (pairs of them) and the sampler's corners, roughness and index values at and near their
+# limits, extreme conductors.
 ETA_PASS = 1e-5
 WEIGHT_BOUND = 1e3
 DTYPES = {"f32": np.float32, "f64": np.float64}
-
-# --------------------------------------------------------------------------------------------
-# Inputs
-# --------------------------------------------------------------------------------------------
-Z_REFL = [0.0, 1e-7, -1e-7, 1e-4, 0.5, 1.0, -0.5]
-Z_DIEL = [0.0, 1e-7, -1e-7, 1e-4, -1e-4, 0.5, -0.5, 0.9, -0.9, 1.0, -1.0]
-ONE_M = 1.0 - 2.0**-24
-U_CORNERS = [(a, b, c) for a in (0.0, ONE_M) for b in (0.0, ONE_M) for c in (0.0, ONE_M)]
-U_EXTRA = [(0.5, 0.5, 0.5), (0.3, 0.7, 0.1), (0.9, 0.2, 0.6), (0.02, 0.98, 0.4)]
-
-GOLD_ETA = (0.143, 0.374, 1.442)
-GOLD_K = (3.983, 2.385, 1.603)
-ALPHAS = [0.0, 1e-8, 1e-4, 1e-3, 1.0, 2.0]
-ALPHAS_BP = [0.0, 1e-8, 1e-4, 1e-3, 1.0]
-ETAS = [1.0, 1 + 1e-6, 1 - 1e-6, 1.0001, 0.5, 4.0, 1.5]
-COND = [(GOLD_ETA, GOLD_K), ((1.0,) * 3, (0.0,) * 3), ((0.2,) * 3, (50.0,) * 3), ((1.5, 0.5, 3.0), (0.0, 50.0, 1.0))]
-
-
-def unit(z, phi):
-    z = np.asarray(z, np.float64)
-    s = np.sqrt(np.maximum(0.0, 1 - z * z))
-    return np.stack([s * np.cos(phi), s * np.sin(phi), z], -1)
-
-
-def pairs(zs):
-    """Direction pairs: every (z_o, z_i) with wi at azimuth pi (plane of incidence, mirror) and
-    pi/3, plus wo = wi and wo = -wi for every z_o."""
-    wo, wi = [], []
-    for zo in zs:
-        for zi in zs:
-            for phi in (np.pi, np.pi / 3):
-                wo.append(unit(zo, 0.0))
-                wi.append(unit(zi, phi))
-        a = unit(zo, 0.3)
-        wo += [a, a]
-        wi += [a, -a]
-    return np.array(wo), np.array(wi)
-
-
-def sample_inputs(zs):
-    wo, u = [], []
-    for zo in zs:
-        for uu in U_CORNERS + U_EXTRA:
-            wo.append(unit(zo, 0.2))
-            u.append(uu)
-    return np.array(wo), np.array(u)
+ALPHAS, ALPHAS_BP, ETAS, COND = C.ALPHAS_HARD, C.ALPHAS_HARD_BP, C.ETAS_HARD, C.CONDUCTORS_HARD
+GOLD_ETA, GOLD_K = C.GOLD_ETA, C.GOLD_K
 
 
 # --------------------------------------------------------------------------------------------
@@ -432,7 +385,10 @@ def _reflected_fraction(model, wo, n=4096):
     return jax.vmap(one)(wo)
 
 
-@pytest.mark.parametrize("alpha", [0.0, 1e-8, 1e-4, ALPHA_SMOOTH])
+assert max(C.ALPHA_NEAR_ZERO) == ALPHA_SMOOTH
+
+
+@pytest.mark.parametrize("alpha", C.ALPHA_NEAR_ZERO)
 def test_rough_approaches_smooth(alpha, x64):
     wo = jnp.asarray(unit(np.cos(np.radians([0.0, 30.0, 60.0, 80.0])), 0.4))
     pairs_ = [
@@ -476,8 +432,8 @@ dirs = st.tuples(st.lists(z_values(), min_size=NP, max_size=NP), st.lists(z_valu
                  st.lists(st.floats(0, 2 * np.pi), min_size=NP, max_size=NP))
 u_st = st.lists(st.tuples(*[st.one_of(st.sampled_from([0.0, ONE_M]), st.floats(0.0, ONE_M))] * 3),
                 min_size=NP, max_size=NP)
-alpha_st = st.one_of(st.sampled_from([0.0, 1e-8, 1e-4, 1e-3, 1.0, 2.0]), st.floats(0.0, 2.0))
-eta_st = st.one_of(st.sampled_from([1.0, 1 + 1e-6, 1 - 1e-6, 1.0001, 0.5, 4.0]), st.floats(0.2, 5.0))
+alpha_st = st.one_of(st.sampled_from(C.ALPHAS_HARD), st.floats(0.0, 2.0))
+eta_st = st.one_of(st.sampled_from(C.ETA_NEAR_ONE + (0.5, 4.0)), st.floats(0.2, 5.0))
 unit_st = st.floats(0.0, 1.0)
 rgb = st.lists(unit_st, min_size=3, max_size=3)
 cond_eta = st.lists(st.floats(0.05, 5.0), min_size=3, max_size=3)

@@ -1,10 +1,12 @@
 """The import graph of matfit: no cycles, no module importing another's private names, and the
-flat public API at the top level."""
+flat public API at the top level; and numpy_ref, the tests' and benchmarks' numpy reference, stays
+independent of matfit."""
 
 from __future__ import annotations
 
 import ast
 import importlib
+import sys
 from pathlib import Path
 
 import pytest
@@ -115,3 +117,26 @@ def test_flat_public_api(name):
         assert obj is importlib.import_module(f"matfit.{name}")
     else:
         assert callable(obj)
+
+
+def test_numpy_reference_imports_no_matfit():
+    """numpy_ref (the independent numpy references shared by the tests and the benchmarks) imports
+    only the standard library, numpy, scipy, colour and its own modules: never matfit."""
+    allowed = {"numpy", "scipy", "colour", "numpy_ref"}
+    root = PKG.parent / "numpy_ref"
+    files = sorted(root.glob("*.py"))
+    assert len(files) > 1 and (root / "__init__.py") in files
+    bad = []
+    for path in files:
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                names = ["numpy_ref"] if node.level else [node.module or ""]
+            else:
+                continue
+            for name in names:
+                top = name.split(".")[0]
+                if top not in allowed and top not in sys.stdlib_module_names:
+                    bad.append(f"numpy_ref/{path.name}:{node.lineno} imports {name}")
+    assert not bad, "\n".join(bad)

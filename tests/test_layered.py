@@ -10,7 +10,7 @@
    incidences); reciprocity of ``eval``.
 3. Limits: coat eta = 1 is the base alone; a smooth lossless coat on a white Lambertian base
    (Plastic, internal_reflection=True) has albedo 1; the closed-form albedo under a smooth coat
-   with the Fresnel terms computed here independently (numpy); a thick absorbing coat leaves only
+   with the Fresnel terms of the independent numpy reference (numpy_ref); a thick absorbing coat leaves only
    the coat's reflection.
 4. Gradients w.r.t. every parameter leaf against central finite differences (float64) for
    Plastic and CoatedConductor.
@@ -33,18 +33,12 @@ import pytest
 from scipy import stats
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import catalogue as C  # noqa: E402
 import chi2 as c2  # noqa: E402
+import numpy_ref as R  # noqa: E402
 
-from matfit.models import (  # noqa: E402
-    Blend,
-    CoatedConductor,
-    Lambert,
-    Layered,
-    Plastic,
-    RoughConductor,
-    RoughDielectric,
-    SmoothDielectric,
-)
+from matfit.models import Blend, CoatedConductor, Lambert, Layered, Plastic  # noqa: E402
+from matfit.models import RoughConductor, RoughDielectric, SmoothDielectric  # noqa: E402
 
 
 @pytest.fixture(autouse=True)
@@ -52,16 +46,10 @@ def _x64():
     jax.config.update("jax_enable_x64", True)
 
 
-RHO = (0.8, 0.5, 0.2)
+RHO = C.RGB
 SIGMA = (0.1, 0.5, 1.5)
-GOLD_ETA = (0.143, 0.374, 1.442)
-GOLD_K = (3.983, 2.385, 1.603)
-CU_ETA = (0.27, 0.68, 1.32)
-CU_K = (3.61, 2.63, 2.29)
-
-
-def arr(x, dtype=np.float64):
-    return jnp.asarray(np.asarray(x, dtype=dtype))
+GOLD_ETA, GOLD_K, CU_ETA, CU_K = C.GOLD_ETA, C.GOLD_K, C.CU_ETA, C.CU_K
+arr = C.arr
 
 
 # ------------------------------------------------------------------------------------------------
@@ -137,33 +125,8 @@ def make(name, dtype=np.float64):
     return MODELS[name][0](dtype)
 
 
-# ------------------------------------------------------------------------------------------------
-# Independent references (numpy, float64; never matfit.fresnel)
-# ------------------------------------------------------------------------------------------------
-def fresnel_np(cos_i, eta):
-    """Unpolarised Fresnel reflectance for light arriving at |cos_i| onto relative index eta (TIR
-    through the complex square root)."""
-    c = np.asarray(np.abs(cos_i), np.complex128)
-    n = np.asarray(eta, np.complex128)
-    ct = np.sqrt(1 - (1 - c * c) / (n * n))
-    rs = (c - n * ct) / (c + n * ct)
-    rp = (n * c - ct) / (n * c + ct)
-    return 0.5 * (np.abs(rs) ** 2 + np.abs(rp) ** 2)
-
-
-def fresnel_avg_np(eta, n=400):
-    """2 int_0^1 F(mu; eta) mu dmu: TIR part in closed form, the rest by Gauss-Legendre after
-    mu = mu_c + (1 - mu_c) s^2 (removes the square-root kink at the critical cosine)."""
-    mu_c = math.sqrt(1 - eta * eta) if eta < 1 else 0.0
-    x, w = np.polynomial.legendre.leggauss(n)
-    s, ws = 0.5 * (x + 1), 0.5 * w
-    mu = mu_c + (1 - mu_c) * s * s
-    return mu_c**2 + 2 * np.sum(ws * 2 * (1 - mu_c) * s * fresnel_np(mu, eta) * mu)
-
-
 def wo_deg(deg, phi=0.3):
-    th = math.radians(deg)
-    return np.array([math.sin(th) * math.cos(phi), math.sin(th) * math.sin(phi), math.cos(th)])
+    return C.from_degrees(deg, phi)
 
 
 def p_delta_ref(name, wo):
@@ -171,7 +134,7 @@ def p_delta_ref(name, wo):
     if info is None:
         return 0.0
     kind, eta, rho, sel = info
-    F = float(fresnel_np(wo[2], eta))
+    F = float(R.fresnel_dielectric(wo[2], eta))
     if kind == "layered":
         return sel * F
     return sel * F / (F + (1 - F) * float(np.mean(rho)))
@@ -236,12 +199,8 @@ def _seed(*parts):
 
 def _upper_quadrature(n=64):
     """Gauss-Legendre in cos(theta) x midpoint in phi over the upper hemisphere: (wi, weight * cos)."""
-    x, w = np.polynomial.legendre.leggauss(n)
-    mu, wmu = 0.5 * (x + 1), 0.5 * w
-    phi = (np.arange(2 * n) + 0.5) * np.pi / n
-    s = np.sqrt(1 - mu**2)
-    wi = np.stack(np.broadcast_arrays(s[:, None] * np.cos(phi), s[:, None] * np.sin(phi), mu[:, None]), -1)
-    return wi.reshape(-1, 3), np.repeat(wmu * mu, 2 * n) * (np.pi / n)
+    wi, w = R.upper_hemisphere_rule(n)
+    return wi.reshape(-1, 3), (w * wi[..., 2]).ravel()
 
 
 QUAD = _upper_quadrature()
@@ -509,11 +468,11 @@ def test_limit_white_plastic_albedo_1(eta):
 def test_limit_smooth_coat_closed_form(eta):
     """E = F + (1-F) rho (1-Fi)/(1-rho Fi) (Plastic, internal reflection); F + (1-F) rho (1-Fe)
     (Plastic without: T T rho/pi); F + (1-F) rho (1-Fi) (Layered over Lambert: T T rho/(pi eta^2))."""
-    F_e = fresnel_avg_np(eta)
-    F_i = fresnel_avg_np(1 / eta)
+    F_e = R.fresnel_dielectric_average(eta)
+    F_i = R.fresnel_dielectric_average(1 / eta)
     assert abs((1 - F_i) - (1 - F_e) / eta**2) < 1e-9  # self-check of the reference
     wos = np.stack([wo_deg(d) for d in ALB_DEGS])
-    F = fresnel_np(wos[:, 2], eta)[:, None]
+    F = R.fresnel_dielectric(wos[:, 2], eta)[:, None]
     for rho in ((0.05, 0.5, 0.95), (0.2, 0.8, 1.0)):
         rho = np.array(rho)
         refs = {
@@ -529,7 +488,7 @@ def test_limit_smooth_coat_closed_form(eta):
 @pytest.mark.parametrize("base", list(BASES))
 def test_limit_thick_absorbing_smooth(base):
     wos = np.stack([wo_deg(d) for d in ALB_DEGS])
-    F = np.broadcast_to(fresnel_np(wos[:, 2], 1.5)[:, None], (len(wos), 3))
+    F = np.broadcast_to(R.fresnel_dielectric(wos[:, 2], 1.5)[:, None], (len(wos), 3))
     lay = layered(0.0, 1.5, BASES[base](), thickness=60.0, sigma=(1.0, 2.0, 0.5))
     np.testing.assert_allclose(quad_albedo(lay, wos), F, atol=1e-9)
     cc = coated(0.2, alpha_c=0.0, eta_c=1.5, thickness=60.0, sigma=(1.0, 2.0, 0.5))

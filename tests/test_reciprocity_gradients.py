@@ -10,18 +10,16 @@ candidate, f_t(wo, wi) * eta_o^2 == f_t(wi, wo) * eta_i^2, is violated by a fact
 symmetry f_t(wo, wi) == f_t(wi, wo) by a factor eta^2 (asserted below).
 """
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import reference as R
+import catalogue as C
+import numpy_ref as R
 
-KINDS = ["ggx", "beckmann", "blinn_phong"]
-MASKINGS = ["separable", "height_correlated"]
 N = 120
-GOLD_ETA = [0.143, 0.374, 1.442]
-GOLD_K = [3.983, 2.385, 1.603]
 
 
 def j(x):
@@ -29,23 +27,12 @@ def j(x):
 
 
 def rel(a, b):
-    a, b = np.asarray(a, float), np.asarray(b, float)
-    with np.errstate(all="ignore"):
-        e = np.abs(a - b) / np.maximum(np.abs(b), 1e-280)
-    return np.where(a == b, 0.0, e)
+    return R.rel_err(a, b, 1e-280)
 
 
 # ---------------------------------------------------------------------------------------------
 # Reciprocity
 # ---------------------------------------------------------------------------------------------
-def half_vectors(wo, wi, eta):
-    co, ci = wo[:, 2], wi[:, 2]
-    etap = np.where(co * ci > 0, 1.0, np.where(co > 0, eta, 1 / eta))
-    m = etap[:, None] * wi + wo
-    m /= np.linalg.norm(m, axis=-1, keepdims=True)
-    return np.where(m[:, 2:3] < 0, -m, m)
-
-
 def test_lambert_reciprocity(x64, rng):
     from matfit.models import Lambert
 
@@ -54,33 +41,27 @@ def test_lambert_reciprocity(x64, rng):
     np.testing.assert_array_equal(np.asarray(model.eval(j(wo), j(wi))), np.asarray(model.eval(j(wi), j(wo))))
 
 
-@pytest.mark.parametrize("alpha_y", [None, 0.15], ids=["iso", "aniso"])
-@pytest.mark.parametrize("masking", MASKINGS)
-@pytest.mark.parametrize("kind", KINDS)
-def test_rough_conductor_reciprocity(kind, masking, alpha_y, x64, rng):
-    from matfit.models import RoughConductor
+RECIPROCITY_LOBES = C.lobe_params(alphas=((0.4, None), (0.4, 0.15)))
 
-    wo, wi = R.random_directions(rng, N, "upper", 0.01), R.random_directions(rng, N, "upper", 0.01)
-    model = RoughConductor(j(0.4), j(GOLD_ETA), j(GOLD_K), distribution=kind, masking=masking,
-                           alpha_y=None if alpha_y is None else j(alpha_y))
+
+@pytest.mark.parametrize("lobe", RECIPROCITY_LOBES)
+def test_rough_conductor_reciprocity(lobe, x64, rng):
+    wo, wi = C.random_pairs(rng, N, 0.01)
+    model = C.rough_conductor(lobe)
     f1, f2 = np.asarray(model.eval(j(wo), j(wi))), np.asarray(model.eval(j(wi), j(wo)))
     assert np.count_nonzero(f1) > N
     assert rel(f1, f2).max() <= 1e-10
 
 
 @pytest.mark.parametrize("eta", [1.5, 0.67])
-@pytest.mark.parametrize("alpha_y", [None, 0.15], ids=["iso", "aniso"])
-@pytest.mark.parametrize("masking", MASKINGS)
-@pytest.mark.parametrize("kind", KINDS)
-def test_rough_dielectric_reciprocity(kind, masking, alpha_y, eta, x64, rng):
-    from matfit.models import RoughDielectric
-
-    model = RoughDielectric(j(0.4), j(eta), distribution=kind, masking=masking,
-                            alpha_y=None if alpha_y is None else j(alpha_y))
-    ref = R.Dist(kind, 0.4, alpha_y)
+@pytest.mark.parametrize("lobe", RECIPROCITY_LOBES)
+def test_rough_dielectric_reciprocity(lobe, eta, x64, rng):
+    model = C.rough_dielectric(lobe, eta)
+    ref = lobe.ref()
+    masking = lobe.masking
     # reflection, from outside and from inside
     for hemi in ["upper", "lower"]:
-        wo, wi = R.random_directions(rng, N, hemi, 0.01), R.random_directions(rng, N, hemi, 0.01)
+        wo, wi = C.random_pairs(rng, N, 0.01, hemi)
         f1, f2 = np.asarray(model.eval(j(wo), j(wi))), np.asarray(model.eval(j(wi), j(wo)))
         assert np.count_nonzero(f1) > N // 2
         assert rel(f1, f2).max() <= 1e-10, f"reflection reciprocity ({hemi})"
@@ -90,10 +71,9 @@ def test_rough_dielectric_reciprocity(kind, masking, alpha_y, eta, x64, rng):
     np.testing.assert_array_equal(f1 > 0, f2 > 0)
     # Skip values in the subnormal range and pairs within |sin^2 theta_t - 1| < 1e-3 of the critical
     # angle, where 1 - F evaluated from the inside (for the reversed pair) is ill-conditioned.
-    m = half_vectors(wo, wi, eta)
-    c = np.sum(wo * m, -1)  # wo outside: sin^2 theta_t = (1 - c^2)/eta^2 seen from the other side
+    s2_outside, m = C.sin2_transmitted(wo, wi, eta)  # wo outside: (1 - c^2)/eta^2 seen from the other side
     s2_inside = eta**2 * (1 - np.sum(wi * m, -1) ** 2)
-    nz = (f1 > 1e-250) & (np.abs(s2_inside - 1) > 1e-3) & (np.abs((1 - c**2) / eta**2 - 1) > 1e-3)
+    nz = (f1 > 1e-250) & (np.abs(s2_inside - 1) > 1e-3) & (np.abs(s2_outside - 1) > 1e-3)
     assert np.count_nonzero(nz) > 20
     eta_o, eta_i = 1.0, eta
     # the form that holds, for the library and for the reference
@@ -152,130 +132,71 @@ def check_dir_grad(per_point, w, name, h=1e-6):
     assert err[i] <= FD_RTOL, f"d/d{name}[{i}]: grad {g[i]} vs FD {fd[i]} (rel err {err[i]:.2e}) at {name}={w[i]}"
 
 
-def smooth_conductor_points(rng, n=40):
-    """Upper-hemisphere pairs away from the horizon (no discontinuity of the conductor BRDF there)."""
-    return R.random_directions(rng, n, "upper", 0.15), R.random_directions(rng, n, "upper", 0.15)
+def check_model_gradients(cls, lobe, params, wo, wi):
+    """Gradients of ``sum(eval)`` of ``cls(**params, <lobe's options>)`` w.r.t. every parameter
+    (alpha_y too when the lobe is anisotropic) and, per point, w.r.t. wo and wi, against central
+    differences."""
+    params = dict(params, alpha=lobe.alpha, alpha_y=lobe.alpha_y)
+    options = dict(distribution=lobe.dist, masking=lobe.masking)
 
-
-def smooth_dielectric_points(rng, eta, dist, n=40):
-    """Pairs whose generalized half vector is well inside the valid region and away from the
-    critical angle (where F has a square-root kink and 1 - F a corner)."""
-    wo = R.random_directions(rng, 25 * n, "both", 0.15)
-    wi = R.random_directions(rng, 25 * n, "both", 0.15)
-    co, ci = wo[:, 2], wi[:, 2]
-    etap = np.where(co * ci > 0, 1.0, np.where(co > 0, eta, 1 / eta))
-    m = etap[:, None] * wi + wo
-    hn = np.linalg.norm(m, axis=-1)
-    m /= hn[:, None]
-    m = np.where(m[:, 2:3] < 0, -m, m)
-    wom, wim = np.sum(wo * m, -1), np.sum(wi * m, -1)
-    e = np.where(wom < 0, 1 / eta, eta)
-    s2t = (1 - wom**2) / e**2
-    f = R.dielectric_eval(wo, wi, dist, eta)[:, 0]
-    ok = (hn > 0.2) & (wom * co > 0.1) & (wim * ci > 0.1) & (np.abs(s2t - 1) > 0.05) & (f > 1e-8)
-    ok &= m[:, 2] > 0.15
-    wo, wi = wo[ok], wi[ok]
-    refl = wo[:, 2] * wi[:, 2] > 0
-    # balance reflection and transmission
-    k = min(n // 2, int(refl.sum()), int((~refl).sum()))
-    assert k >= 8
-    return np.concatenate([wo[refl][:k], wo[~refl][:k]]), np.concatenate([wi[refl][:k], wi[~refl][:k]])
-
-
-def test_lambert_gradients(x64, rng):
-    from matfit.models import Lambert
-
-    wo, wi = smooth_conductor_points(rng)
-    albedo = np.array([0.2, 0.5, 0.9])
-    g = check_param_grad(lambda a: Lambert(a).eval(j(wo), j(wi)).sum(), albedo, "albedo")
-    np.testing.assert_allclose(g, len(wo) / np.pi, rtol=1e-12)
-
-
-@pytest.mark.parametrize("alpha_y", [None, 0.2], ids=["iso", "aniso"])
-@pytest.mark.parametrize("masking", MASKINGS)
-@pytest.mark.parametrize("kind", KINDS)
-def test_rough_conductor_gradients(kind, masking, alpha_y, x64, rng):
-    from matfit.models import RoughConductor
-
-    wo, wi = smooth_conductor_points(rng)
-    alpha, eta, k = 0.35, np.array(GOLD_ETA), np.array(GOLD_K)
-
-    def make(alpha=alpha, eta=eta, k=k, alpha_y=alpha_y):
-        conv = lambda x: x if isinstance(x, jax.Array) else j(x)
-        return RoughConductor(conv(alpha), conv(eta), conv(k), distribution=kind, masking=masking,
-                              alpha_y=None if alpha_y is None else conv(alpha_y))
+    def make(**over):
+        p = {k: (v if isinstance(v, jax.Array) or v is None else j(v)) for k, v in {**params, **over}.items()}
+        return cls(**p, **options)
 
     W0, W1 = j(wo), j(wi)
-    check_param_grad(lambda a: make(alpha=a).eval(W0, W1).sum(), alpha, "alpha")
-    if alpha_y is not None:
-        check_param_grad(lambda a: make(alpha_y=a).eval(W0, W1).sum(), alpha_y, "alpha_y")
-    check_param_grad(lambda e: make(eta=e).eval(W0, W1).sum(), eta, "eta")
-    check_param_grad(lambda kk: make(k=kk).eval(W0, W1).sum(), k, "k")
+    for name, x in params.items():
+        if x is not None:
+            check_param_grad(lambda v, name=name: make(**{name: v}).eval(W0, W1).sum(), x, name)
     model = make()
     check_dir_grad(lambda v: model.eval(v, W1).sum(-1), wo, "wo")
     check_dir_grad(lambda v: model.eval(W0, v).sum(-1), wi, "wi")
 
 
+def test_lambert_gradients(x64, rng):
+    from matfit.models import Lambert
+
+    wo, wi = C.random_pairs(rng, 40)
+    albedo = np.array([0.2, 0.5, 0.9])
+    g = check_param_grad(lambda a: Lambert(a).eval(j(wo), j(wi)).sum(), albedo, "albedo")
+    np.testing.assert_allclose(g, len(wo) / np.pi, rtol=1e-12)
+
+
+GRADIENT_LOBES = C.lobe_params(alphas=((0.35, None), (0.35, 0.2)))
+
+
+@pytest.mark.parametrize("lobe", GRADIENT_LOBES)
+def test_rough_conductor_gradients(lobe, x64, rng):
+    from matfit.models import RoughConductor
+
+    wo, wi = C.random_pairs(rng, 40)
+    check_model_gradients(RoughConductor, lobe, dict(eta=np.array(C.GOLD_ETA), k=np.array(C.GOLD_K)), wo, wi)
+
+
 @pytest.mark.parametrize("eta", [1.5, 0.67])
-@pytest.mark.parametrize("alpha_y", [None, 0.2], ids=["iso", "aniso"])
-@pytest.mark.parametrize("masking", MASKINGS)
-@pytest.mark.parametrize("kind", KINDS)
-def test_rough_dielectric_gradients(kind, masking, alpha_y, eta, x64, rng):
+@pytest.mark.parametrize("lobe", GRADIENT_LOBES)
+def test_rough_dielectric_gradients(lobe, eta, x64, rng):
     from matfit.models import RoughDielectric
 
-    alpha = 0.35
-    wo, wi = smooth_dielectric_points(rng, eta, R.Dist(kind, alpha, alpha_y))
-
-    def make(alpha=alpha, eta=eta, alpha_y=alpha_y):
-        conv = lambda x: x if isinstance(x, jax.Array) else j(x)
-        return RoughDielectric(conv(alpha), conv(eta), distribution=kind, masking=masking,
-                               alpha_y=None if alpha_y is None else conv(alpha_y))
-
-    W0, W1 = j(wo), j(wi)
-    check_param_grad(lambda a: make(alpha=a).eval(W0, W1).sum(), alpha, "alpha")
-    if alpha_y is not None:
-        check_param_grad(lambda a: make(alpha_y=a).eval(W0, W1).sum(), alpha_y, "alpha_y")
-    check_param_grad(lambda e: make(eta=e).eval(W0, W1).sum(), eta, "eta")
-    model = make()
-    check_dir_grad(lambda v: model.eval(v, W1)[..., 0], wo, "wo")
-    check_dir_grad(lambda v: model.eval(W0, v)[..., 0], wi, "wi")
+    wo, wi = C.smooth_dielectric_pairs(rng, eta, lobe.ref())
+    check_model_gradients(RoughDielectric, lobe, dict(eta=eta), wo, wi)
 
 
-# Special configurations where the value is 0 or a formula has a removable singularity: the
-# gradients must still be finite (no NaN leaking through a `where`).
-SPECIAL_PAIRS = [
-    ([0, 0, 1], [0, 0, 1]),  # normal incidence, h = n (Blinn-Phong's phi is undefined there)
-    ([0.6, 0, 0.8], [-0.6, 0, 0.8]),  # mirror configuration, h = n
-    ([0.6, 0, 0.8], [0.0, 0.6, -0.8]),  # one direction below the surface
-    ([0, 0, 1], [0, 0, -1]),  # straight through
-    ([0, 0, -1], [0, 0, -1]),  # inside, normal
-    ([0.8, 0, -0.6], [-0.8, 0, -0.6]),  # inside mirror configuration (TIR at eta = 1.5)
-    ([1.0, 0, 0.0], [0.0, 0, 1.0]),  # grazing wo
-]
-
-
-@pytest.mark.parametrize("kind", KINDS)
-def test_gradients_finite_at_special_points(kind, x64):
-    from matfit.models import Lambert, RoughConductor, RoughDielectric
-
-    wo = j([p[0] for p in SPECIAL_PAIRS])
-    wi = j([p[1] for p in SPECIAL_PAIRS])
-    for masking in MASKINGS:
-        builders = {
-            "Lambert": (lambda p: Lambert(p[0] * jnp.ones(3)), j([0.5])),
-            "RoughConductor": (lambda p: RoughConductor(p[0], p[1] * jnp.asarray(GOLD_ETA), p[2] * jnp.asarray(GOLD_K),
-                                                         distribution=kind, masking=masking, alpha_y=p[3]), j([0.3, 1, 1, 0.2])),
-            "RoughDielectric": (lambda p: RoughDielectric(p[0], p[1], distribution=kind, masking=masking, alpha_y=p[2]),
-                                j([0.3, 1.5, 0.2])),
-        }
-        for name, (build, p0) in builders.items():
-            val = build(p0).eval(wo, wi)
-            assert np.all(np.isfinite(np.asarray(val))), f"{name}.eval not finite: {val}"
-            gp = jax.grad(lambda p: build(p).eval(wo, wi).sum())(p0)
-            assert np.all(np.isfinite(np.asarray(gp))), f"{name}({kind}, {masking}): d/dparams not finite: {gp}"
-            gwo, gwi = jax.grad(lambda a, b: build(p0).eval(a, b).sum(), argnums=(0, 1))(wo, wi)
-            bad = ~np.all(np.isfinite(np.asarray(gwo)), -1) | ~np.all(np.isfinite(np.asarray(gwi)), -1)
-            assert not bad.any(), (
-                f"{name}({kind}, {masking}): d/dwo or d/dwi not finite at pairs "
-                f"{[SPECIAL_PAIRS[i] for i in np.flatnonzero(bad)]}"
-            )
+# Special configurations where the value is 0 or a formula has a removable singularity (the
+# catalogue's SPECIAL_PAIRS): the gradients must still be finite (no NaN leaking through a `where`).
+# (The layered models' gradients at such pairs: tests/test_layered.py, test_gradients_finite_edges;
+# the delta models': tests/test_hard_cases.py, test_delta_models_eval_pdf_zero.)
+@pytest.mark.parametrize("case", C.model_params())
+def test_gradients_finite_at_special_points(case, x64):
+    wo, wi = (j(x) for x in C.special_pairs())
+    model = case.build(np.float64)
+    val = model.eval(wo, wi)
+    assert np.all(np.isfinite(np.asarray(val))), f"{case.id}.eval not finite: {val}"
+    params, static = eqx.partition(model, eqx.is_inexact_array)
+    gp = jax.grad(lambda p: eqx.combine(p, static).eval(wo, wi).sum())(params)
+    for path, leaf in jax.tree_util.tree_flatten_with_path(gp)[0]:
+        assert np.all(np.isfinite(np.asarray(leaf))), f"{case.id}: d/d{jax.tree_util.keystr(path)} not finite: {leaf}"
+    gwo, gwi = jax.grad(lambda a, b: model.eval(a, b).sum(), argnums=(0, 1))(wo, wi)
+    bad = ~np.all(np.isfinite(np.asarray(gwo)), -1) | ~np.all(np.isfinite(np.asarray(gwi)), -1)
+    assert not bad.any(), (
+        f"{case.id}: d/dwo or d/dwi not finite at pairs {[C.SPECIAL_PAIRS[i] for i in np.flatnonzero(bad)]}"
+    )

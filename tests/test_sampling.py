@@ -34,16 +34,12 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import catalogue as C  # noqa: E402
 import chi2 as c2  # noqa: E402
+import numpy_ref as R  # noqa: E402
 
 from matfit import microfacet as mf  # noqa: E402
-from matfit.models import (  # noqa: E402
-    Lambert,
-    RoughConductor,
-    RoughDielectric,
-    SmoothConductor,
-    SmoothDielectric,
-)
+from matfit.models import Lambert, RoughConductor, RoughDielectric, SmoothConductor, SmoothDielectric  # noqa: E402
 
 F32 = np.float32
 CHUNK = 1 << 15
@@ -52,14 +48,16 @@ N_SAMPLES = 4 * CHUNK  # 131072  # fixed batch size of pdf evaluations in the qu
 COMBOS = [("ggx", "visible"), ("ggx", "dcos"), ("beckmann", "visible"), ("beckmann", "dcos"), ("blinn_phong", "dcos")]
 ALPHAS = [1e-3, 0.05, 0.3, 1.0]
 INCS = [0.0, 30.0, 60.0, 89.0]
-ETAS = [1.01, 1.5, 3.0, 0.67]
+ETAS = list(C.DIELECTRIC_ETAS)
 ANISO = (0.1, 0.4)
 COND_ETA = (0.2, 0.9, 1.5)  # a 3-channel conductor (C = 3)
 COND_K = (3.0, 2.5, 1.8)
+#: a conductor with one nearly white channel (k = 10) and one with k = 0
+METAL_ETA, METAL_K = np.array([0.2, 1.0, 1.5]), np.array([3.0, 10.0, 0.0])
 
 
 def f32(x):
-    return jnp.asarray(np.asarray(x, dtype=F32))
+    return C.arr(x, F32)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -89,20 +87,19 @@ class Case:
             s += f"-eta{self.eta:g}-{'in' if self.inside else 'out'}"
         return s
 
+    @property
+    def lobe(self):
+        return C.Lobe(self.dist, self.masking, self.alpha, self.alpha_y, self.sampling)
+
     def make(self):
         if self.model == "lambert":
-            return Lambert(f32([0.8, 0.5, 0.2]))
-        ay = None if self.alpha_y is None else f32(self.alpha_y)
+            return Lambert(f32(C.RGB))
         if self.model == "conductor":
-            return RoughConductor(f32(self.alpha), f32(COND_ETA), f32(COND_K), distribution=self.dist,
-                                  masking=self.masking, alpha_y=ay, sampling=self.sampling)
-        return RoughDielectric(f32(self.alpha), f32(self.eta), distribution=self.dist, masking=self.masking,
-                               alpha_y=ay, sampling=self.sampling)
+            return C.rough_conductor(self.lobe, COND_ETA, COND_K, F32)
+        return C.rough_dielectric(self.lobe, self.eta, F32)
 
     def wo(self):
-        th, ph = math.radians(self.deg), self.phi
-        w = np.array([math.sin(th) * math.cos(ph), math.sin(th) * math.sin(ph), math.cos(th)])
-        w = -w if self.inside else w
+        w = C.from_degrees(self.deg, self.phi, self.inside)
         return (w / np.linalg.norm(w)).astype(F32)
 
     @property
@@ -396,52 +393,9 @@ def test_sampled_albedo_le_1(case):
 
 
 # ------------------------------------------------------------------------------------------------
-# Independent float64 reference formulas (written from the physics, not from matfit)
+# The independent float64 reference: numpy_ref.ggx_conductor_albedo (quadrature), checked here
 # ------------------------------------------------------------------------------------------------
-def fresnel_ref(cos_i, n_complex):
-    """Unpolarised Fresnel reflectance for incidence from the outside onto a medium of (complex)
-    relative index n, from the s and p amplitude coefficients (TIR falls out of the complex sqrt)."""
-    c = np.asarray(np.abs(cos_i), np.complex128)
-    n = np.asarray(n_complex, np.complex128)
-    ct = np.sqrt(1 - (1 - c * c) / (n * n))
-    rs = (c - n * ct) / (c + n * ct)
-    rp = (n * c - ct) / (n * c + ct)
-    return 0.5 * (np.abs(rs) ** 2 + np.abs(rp) ** 2)
-
-
-def fresnel_dielectric_ref(cos_i, eta):
-    """cos_i < 0: incidence from inside (relative index 1/eta)."""
-    cos_i = np.asarray(cos_i, np.float64)
-    return fresnel_ref(cos_i, np.where(cos_i < 0, 1.0 / eta, eta))
-
-
-def ggx_albedo_ref(mu_o, alpha, form, eta=None, k=None, n=256):
-    """Directional albedo of the isotropic GGX conductor with Smith masking, by tensor
-    Gauss-Legendre (cos theta_i) x midpoint (phi) quadrature of D G2 F / (4 cos_o) over the upper
-    hemisphere of wi. F = 1 when eta is None. float64."""
-    x, w = np.polynomial.legendre.leggauss(n)
-    mu, wmu = 0.5 * (x + 1), 0.5 * w
-    phi = (np.arange(2 * n) + 0.5) * np.pi / n
-    MU, PH = np.meshgrid(mu, phi, indexing="ij")
-    wts = wmu[:, None] * (np.pi / n)
-    s = np.sqrt(1 - MU**2)
-    wi = np.stack([s * np.cos(PH), s * np.sin(PH), MU], -1)
-    wo = np.array([math.sqrt(1 - mu_o**2), 0.0, mu_o])
-    h = wi + wo
-    h /= np.linalg.norm(h, axis=-1, keepdims=True)
-    a2 = alpha * alpha
-    D = a2 / (np.pi * (h[..., 2] ** 2 * (a2 - 1) + 1) ** 2)
-
-    def lam(z):
-        return 0.5 * (-1 + np.sqrt(1 + a2 * (1 - z * z) / (z * z)))
-
-    lo, li = lam(mu_o), lam(MU)
-    G2 = 1 / (1 + lo + li) if form == "height_correlated" else 1 / ((1 + lo) * (1 + li))
-    integrand = D * G2 / (4 * mu_o)
-    if eta is None:
-        return float(np.sum(integrand * wts))
-    F = fresnel_ref(np.sum(wo * h, -1)[..., None], np.asarray(eta) + 1j * np.asarray(k))
-    return np.sum(integrand[..., None] * F * wts[..., None], axis=(0, 1))
+ggx_albedo_ref = R.ggx_conductor_albedo
 
 
 # Blender Cycles, src/scene/shader.tables, table_ggx_E (albedo of the height-correlated Smith GGX
@@ -474,14 +428,8 @@ def _d_g2(d, wo, wi, h, form):
 
 @pytest.mark.parametrize("form", ["separable", "height_correlated"])
 def test_ggx_energy_loss_alpha1(form):
-    n = 128
-    x, w = np.polynomial.legendre.leggauss(n)
-    mu, wmu = 0.5 * (x + 1), 0.5 * w
-    phi = (np.arange(2 * n) + 0.5) * np.pi / n
-    MU, PH = np.meshgrid(mu, phi, indexing="ij")
-    wts = (wmu[:, None] * (np.pi / n) * np.ones_like(PH)).ravel()
-    s = np.sqrt(1 - MU**2)
-    wi = np.stack([s * np.cos(PH), s * np.sin(PH), MU], -1).reshape(-1, 3)
+    wi, wts = R.upper_hemisphere_rule(128)
+    wi, wts = wi.reshape(-1, 3), wts.ravel()
     d = mf.GGX(f32(1.0))
     for deg in (0.0, 45.0, 80.0):
         mu_o = math.cos(math.radians(deg))
@@ -507,9 +455,9 @@ def test_rough_conductor_albedo_vs_reference():
     (height-correlated masking; the separable form is checked through the microfacet functions
     in test_ggx_energy_loss_alpha1)."""
     form = "height_correlated"
-    eta, k = np.array([0.2, 1.0, 1.5]), np.array([3.0, 10.0, 0.0])
+    eta, k = METAL_ETA, METAL_K
     degs = np.array([0.0, 45.0, 80.0])
-    wo = np.stack([np.sin(np.radians(degs)), 0 * degs, np.cos(np.radians(degs))], -1)
+    wo = C.from_degrees(degs)
     for alpha in (1.0,):
         model = RoughConductor(f32(alpha), f32(eta), f32(k), distribution="ggx", masking=form, alpha_y=f32(alpha))
         eq = np.asarray(_albedo(model, f32(wo), "quadrature", 128, None), np.float64)
@@ -526,10 +474,7 @@ def test_rough_conductor_albedo_vs_reference():
 # 4c. model.albedo(method="mc" | "quadrature") <= 1 over a parameter grid (vmapped over parameters)
 # ------------------------------------------------------------------------------------------------
 def _wos(degs, inside=False):
-    degs = np.asarray(degs, np.float64)
-    w = np.stack([np.sin(np.radians(degs)) * np.cos(0.4), np.sin(np.radians(degs)) * np.sin(0.4),
-                  np.cos(np.radians(degs))], -1)
-    return -w if inside else w
+    return C.from_degrees(degs, 0.4, inside)
 
 
 @eqx.filter_jit
@@ -588,17 +533,12 @@ def _delta_all(model, wo, u, wr):
     return wi, weight, pdf, model.eval(wo, wi), model.pdf(wo, wi), model.eval(wo, wr), model.pdf(wo, wr)
 
 
-def _random_dirs(rng, n):
-    v = rng.standard_normal((n, 3))
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
-
-
 N_DELTA = 1 << 15
 
 
 @pytest.mark.parametrize("inside", [False, True], ids=["outside", "inside"])
 def test_smooth_conductor(inside):
-    eta, k = np.array([0.2, 1.0, 1.5]), np.array([3.0, 10.0, 0.0])
+    eta, k = METAL_ETA, METAL_K
     model = SmoothConductor(f32(eta), f32(k))
     rng = np.random.default_rng(_seed("smooth_conductor", inside))
     degs = np.array(INCS + [45.0, 75.0])
@@ -606,13 +546,13 @@ def test_smooth_conductor(inside):
     wob = np.repeat(wo, 64, axis=0)
     u = rng.random((len(wob), 3), dtype=F32)
     wi, w, p, ev, pd, ev2, pd2 = (np.asarray(a, np.float64) for a in
-                                  _delta_all(model, f32(wob), f32(u), f32(_random_dirs(rng, len(wob)))))
+                                  _delta_all(model, f32(wob), f32(u), f32(R.random_directions(rng, len(wob), "both"))))
     assert np.all(ev == 0) and np.all(pd == 0) and np.all(ev2 == 0) and np.all(pd2 == 0)
     if inside:  # one-sided: nothing is reflected from below
         assert np.all(w == 0) and np.all(p == 0)
         return
     assert np.allclose(wi, wob * np.array([-1, -1, 1]), atol=2e-6)
-    F = fresnel_ref(wob[:, 2:3], eta + 1j * k)
+    F = R.fresnel_conductor(wob[:, 2:3], eta, k)
     assert np.allclose(w, F, rtol=1e-4, atol=1e-6), np.abs(w - F).max()
     assert np.allclose(p, 1.0)
 
@@ -630,11 +570,11 @@ def test_smooth_dielectric(eta, inside):
         wob = np.broadcast_to(wo, (n, 3))
         u = rng.random((n, 3), dtype=F32)
         wi, w, p, ev, pd, ev2, pd2 = (np.asarray(a, np.float64) for a in
-                                      _delta_all(model, f32(wob), f32(u), f32(_random_dirs(rng, n))))
+                                      _delta_all(model, f32(wob), f32(u), f32(R.random_directions(rng, n, "both"))))
         assert np.all(ev == 0) and np.all(pd == 0) and np.all(ev2 == 0) and np.all(pd2 == 0)
         assert np.all(np.isfinite(wi)) and np.all(np.isfinite(w)) and np.all(p > 0)
         assert np.allclose(np.linalg.norm(wi, axis=-1), 1, atol=1e-5)
-        F = float(fresnel_dielectric_ref(wo[2], eta))
+        F = float(R.fresnel_dielectric(wo[2], eta))
         refl = wi[:, 2] * wo[2] > 0
         frac = refl.mean()
         sig = math.sqrt(max(F * (1 - F), 1e-12) / n)

@@ -1,6 +1,6 @@
 """StochasticLayered (the random-walk reference) against closed forms and the analytic layerings.
 
-The closed forms are computed here independently of matfit (numpy Fresnel and quadrature).
+The closed forms use the independent numpy reference (numpy_ref: Fresnel and its average).
 """
 
 from __future__ import annotations
@@ -10,9 +10,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import catalogue as C
+import numpy_ref as R
 from matfit.models import Lambert, Layered, Plastic, RoughConductor, RoughDielectric, SmoothDielectric, StochasticLayered
 
-THETAS = np.radians([0.0, 40.0, 75.0])
+WO = C.from_degrees([0.0, 40.0, 75.0])
+MU = WO[:, 2]
 
 
 @pytest.fixture(autouse=True)
@@ -20,30 +23,17 @@ def _x64():
     jax.config.update("jax_enable_x64", True)
 
 
-def _fresnel(c, eta):
-    """Unpolarized dielectric Fresnel from outside, numpy, complex cos_t (TIR falls out)."""
-    c = np.asarray(c, complex)
-    ct = np.sqrt(1 - (1 - c**2) / eta**2)
-    rs = (c - eta * ct) / (c + eta * ct)
-    rp = (eta * c - ct) / (eta * c + ct)
-    return 0.5 * (abs(rs) ** 2 + abs(rp) ** 2)
-
-
-def _f_avg(eta, n=4000):
-    mu = (np.arange(n) + 0.5) / n
-    return 2 * np.sum(_fresnel(mu, eta) * mu) / n
-
-
-def _dirs(thetas):
-    return jnp.asarray(np.stack([np.sin(thetas), 0 * thetas, np.cos(thetas)], -1))
+def _dirs(n=len(WO)):
+    """The first n of the directions WO, as a jax array."""
+    return jnp.asarray(WO[:n])
 
 
 def test_albedo_matches_closed_form_smooth_coat():
     rho, eta = 0.5, 1.5
     ref = StochasticLayered(SmoothDielectric(eta), Lambert(rho), n_samples=8192, max_depth=32)
-    e = np.asarray(ref.albedo(_dirs(THETAS), key=jax.random.PRNGKey(3)))[:, 0]
-    F = _fresnel(np.cos(THETAS), eta)
-    fi = _f_avg(1 / eta)
+    e = np.asarray(ref.albedo(_dirs(), key=jax.random.PRNGKey(3)))[:, 0]
+    F = R.fresnel_dielectric(MU, eta)
+    fi = R.fresnel_dielectric_average(1 / eta)
     closed = F + (1 - F) * rho * (1 - fi) / (1 - rho * fi)
     # Each walk's exiting energy is in [0, 1]: standard error <= 0.5 / sqrt(n).
     assert np.all(np.abs(e - closed) < 4 * 0.5 / np.sqrt(8192)), (e, closed)
@@ -51,14 +41,14 @@ def test_albedo_matches_closed_form_smooth_coat():
 
 def test_white_base_lossless_coat_keeps_energy():
     ref = StochasticLayered(SmoothDielectric(1.5), Lambert(1.0), n_samples=2048, max_depth=64)
-    e = np.asarray(ref.albedo(_dirs(THETAS)))[:, 0]
+    e = np.asarray(ref.albedo(_dirs()))[:, 0]
     # Truncation after 64 bounces leaves R_int^64 ~ 1e-14 inside: every path leaves.
     np.testing.assert_allclose(e, 1.0, atol=1e-9)
 
 
 def test_eval_matches_exact_analytic_smooth_coat():
     """For a smooth coat over a Lambertian base, Plastic (internal reflection) is exact."""
-    wo = _dirs(THETAS)
+    wo = _dirs()
     wi = jnp.asarray(np.array([[0.3, 0.2, np.sqrt(1 - 0.13)]] * 3))
     ref = StochasticLayered(SmoothDielectric(1.5), Lambert(0.7), n_samples=8192, max_depth=32)
     f, se = ref.eval_with_error(wo, wi, jax.random.PRNGKey(1))
@@ -67,7 +57,7 @@ def test_eval_matches_exact_analytic_smooth_coat():
 
 
 def test_rough_coat_tends_to_smooth_and_error_falls_with_samples():
-    wo = _dirs(THETAS[:2])
+    wo = _dirs(2)
     wi = jnp.asarray(np.array([[0.3, 0.2, np.sqrt(1 - 0.13)]] * 2))
     exact = np.asarray(Plastic(0.5, 0.0, 1.5).eval(wo, wi))
     errs = []
@@ -81,9 +71,9 @@ def test_rough_coat_tends_to_smooth_and_error_falls_with_samples():
 
 
 def test_limits_thick_coat_and_index_matched_coat():
-    wo = _dirs(THETAS)
+    wo = _dirs()
     thick = StochasticLayered(SmoothDielectric(1.5), Lambert(0.9), thickness=50.0, sigma_a=1.0, n_samples=4096)
-    F = _fresnel(np.cos(THETAS), 1.5)
+    F = R.fresnel_dielectric(MU, 1.5)
     # The coat's mirror reflection is chosen with probability F (weight 1): a binomial estimate.
     e = np.asarray(thick.albedo(wo, key=jax.random.PRNGKey(5)))[:, 0]
     assert np.all(np.abs(e - F) <= 4 * np.sqrt(F * (1 - F) / 4096) + 1e-12), (e, F)
@@ -96,7 +86,7 @@ def test_limits_thick_coat_and_index_matched_coat():
 
 def test_analytic_layered_error_is_measurable():
     """Layered (Weidlich-Wilkie, no interreflection) under-estimates a smooth-coated white base."""
-    wo = _dirs(THETAS[:1])
+    wo = _dirs(1)
     ref = StochasticLayered(SmoothDielectric(1.5), Lambert(0.8), n_samples=4096, max_depth=32)
     e_ref = float(ref.albedo(wo)[0, 0])
     e_ww = float(Layered(SmoothDielectric(1.5), Lambert(0.8)).albedo(wo)[0, 0])
