@@ -563,6 +563,16 @@ class Parametrization:
                 raise ParameterError(f"{what}: {n!r} {why}; the free parameters are {free}")
             self.check_value(what, n, v)
 
+    def _pieces(self, vec, f):
+        """``{name: f(param, piece)}`` over the free parameters' pieces of ``vec`` (..., size);
+        shared parameters lose their length-1 axis."""
+        out, i = {}, 0
+        for p, n in zip(self.free, self.sizes):
+            v = f(p, vec[..., i:i + n])
+            out[p.name] = v if p.per_channel else v[..., 0]
+            i += n
+        return out
+
     def _size(self, p):
         return self.channels if (p.per_channel and p.name not in self.tied) else 1
 
@@ -614,12 +624,7 @@ class Parametrization:
         >>> {k: v.tolist() for k, v in par.split(np.array([0.1, 0.2, 0.3, 0.4])).items()}
         {'albedo': [0.1, 0.2, 0.3], 'alpha': 0.4}
         """
-        out, i = {}, 0
-        for p, n in zip(self.free, self.sizes):
-            v = vec[..., i:i + n]
-            out[p.name] = v if p.per_channel else v[..., 0]
-            i += n
-        return out
+        return self._pieces(vec, lambda p, v: v)
 
     def theta(self, z):
         """Natural parameter values for an unconstrained vector.
@@ -641,12 +646,7 @@ class Parametrization:
         >>> round(float(par.theta(par.z_from_theta({"albedo": 0.5, "alpha": 0.3}))["alpha"]), 6)
         0.3
         """
-        out, i = {}, 0
-        for p, n in zip(self.free, self.sizes):
-            v = p.from_unconstrained(z[..., i:i + n])
-            out[p.name] = v if p.per_channel else v[..., 0]
-            i += n
-        return out
+        return self._pieces(z, lambda p, v: p.from_unconstrained(v))
 
     def theta_vector(self, z):
         """Natural values as a flat vector, same layout as ``z``.
