@@ -1,8 +1,15 @@
-"""Small numerical helpers shared by every model.
+r"""Small numerical helpers shared by every model, and the direction types of the fast path.
 
 Guarded operations use the "double where" pattern: the argument is replaced by a safe value
 *before* the singular operation, so that both the value and the gradient stay finite at the
 guarded points (a plain ``where`` after the fact still propagates NaN gradients).
+
+A direction reaches the microfacet distributions in one of three forms: a ``(..., 3)`` array,
+a :class:`Vec3` (its components as three arrays) or an :class:`IsoDir` (its cosine and squared
+sine only). :func:`as_direction` is the one place that tells them apart: it hands a distribution
+a direction object, and what differs between the forms (the stretched tangential length
+:meth:`Vec3.tan_sq`, Smith's visibility indicator :meth:`Vec3.visible`, the azimuthal mix
+:meth:`Vec3.along_azimuth`, the guard :meth:`Vec3.where_up`) is a method of each type.
 """
 
 from __future__ import annotations
@@ -15,44 +22,126 @@ import jax.numpy as jnp
 COS_EPS = 1e-7
 
 
+def sq(x):
+    """The square ``x * x``.
+
+    Parameters
+    ----------
+    x : array_like
+        Any numeric array.
+
+    Returns
+    -------
+    array
+        ``x * x``, of the type of ``x``.
+
+    Examples
+    --------
+    >>> from matfit._math import sq
+    >>> sq(-3.0)
+    9.0
+    """
+    return x * x
+
+
 def dot(a, b):
-    """Dot product over the last axis: ``(..., 3), (..., 3) -> (...)``."""
+    """Dot product over the last axis: ``(..., 3), (..., 3) -> (...)``.
+
+    Parameters
+    ----------
+    a, b : array_like, shape (..., 3), or Vec3
+        Vectors; they are read only through their components ``v[..., i]``.
+
+    Returns
+    -------
+    jax.Array, shape (...)
+        ``a_x b_x + a_y b_y + a_z b_z``.
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit._math import dot
+    >>> float(dot(jnp.array([1.0, 2.0, 3.0]), jnp.array([4.0, 5.0, 6.0])))
+    32.0
+    """
     return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
 
 
 def safe_sqrt(x):
-    """``sqrt(max(x, 0))`` with a finite gradient at and below 0 (gradient 0 there)."""
+    """``sqrt(max(x, 0))`` with a finite gradient at and below 0 (gradient 0 there).
+
+    Parameters
+    ----------
+    x : array_like
+        Argument of the square root.
+
+    Returns
+    -------
+    jax.Array
+        ``sqrt(x)`` where ``x > 0``, else 0.
+
+    Examples
+    --------
+    >>> import jax, jax.numpy as jnp
+    >>> from matfit._math import safe_sqrt
+    >>> [float(v) for v in safe_sqrt(jnp.array([4.0, -1.0]))], float(jax.grad(safe_sqrt)(0.0))
+    ([2.0, 0.0], 0.0)
+    """
     pos = x > 0
     return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, 1)), 0)
 
 
 def safe_div(num, den, fill=0.0):
-    """``num / den`` where ``den != 0``, else ``fill``; gradients stay finite."""
+    """``num / den`` where ``den != 0``, else ``fill``; gradients stay finite.
+
+    Parameters
+    ----------
+    num, den : array_like
+        Numerator and denominator (broadcast against each other).
+    fill : array_like, optional
+        Value where ``den == 0`` (default 0).
+
+    Returns
+    -------
+    jax.Array
+        The guarded quotient.
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit._math import safe_div
+    >>> [float(v) for v in safe_div(jnp.array([1.0, 1.0]), jnp.array([4.0, 0.0]), fill=-1.0)]
+    [0.25, -1.0]
+    """
     ok = den != 0
     return jnp.where(ok, num / jnp.where(ok, den, 1), fill)
 
 
-def normalize(v):
-    """Unit vector along ``v`` (..., 3) or :class:`Vec3`; vectors shorter than the dtype's
-    machine epsilon (a half vector of nearly opposite unit directions) map to ``(0, 0, 1)`` with
-    finite grads (the derivative of ``v/|v|`` grows as ``1/|v|``)."""
-    n2 = dot(v, v)
-    ok = n2 > jnp.finfo(jnp.result_type(n2)).eps ** 2
-    inv = jnp.where(ok, jax.lax.rsqrt(jnp.where(ok, n2, 1)), 0)
-    if isinstance(v, Vec3):
-        return where_up(ok, Vec3(v.x * inv, v.y * inv, v.z * inv))
-    return where_up(ok, v * inv[..., None])
+def as_float(x):
+    """``x`` as a floating JAX array: integer and boolean input becomes the default float type
+    (float64 when x64 is on, else float32); floating input keeps its dtype.
 
+    Parameters
+    ----------
+    x : array_like
+        A number or an array.
 
-def where_up(ok, v):
-    """``v`` where ``ok``, else the normal ``(0, 0, 1)``: the first half of the double-where
-    pattern for directions, for ``(..., 3)`` arrays, :class:`Vec3` and :class:`IsoDir` alike."""
-    if isinstance(v, Vec3):
-        return Vec3(jnp.where(ok, v.x, 0), jnp.where(ok, v.y, 0), jnp.where(ok, v.z, 1))
-    if isinstance(v, IsoDir):
-        return IsoDir(jnp.where(ok, v.z, 1), jnp.where(ok, v.t2, 0))
-    z = jnp.zeros_like(v).at[..., 2].set(1)
-    return jnp.where(ok[..., None], v, z)
+    Returns
+    -------
+    jax.Array
+        A floating array of the shape of ``x``.
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit._math import as_float
+    >>> bool(jnp.issubdtype(as_float(2).dtype, jnp.floating)), as_float(jnp.float32(0.5)).dtype.name
+    (True, 'float32')
+    """
+    x = jnp.asarray(x)
+    if not jnp.issubdtype(x.dtype, jnp.floating):
+        x = x.astype(jnp.result_type(float))
+    return x
 
 
 @jax.tree_util.register_pytree_node_class
@@ -62,9 +151,14 @@ class Vec3:
     A stand-in for a ``(..., 3)`` array wherever a formula reads a vector only through its
     components ``v[..., 0]``, ``v[..., 1]``, ``v[..., 2]`` (and ``+``, ``-``, :func:`dot`,
     :func:`normalize`): the microfacet distributions (``D``, ``Lambda``, ``G1``, ``G2``) and the
-    models' ``eval`` that are listed in :mod:`matfit.fast`. XLA then keeps one array per component
-    instead of an interleaved ``(..., 3)`` layout, which it fuses far better on CPUs. ``shape``
-    is that of the equivalent ``(..., 3)`` array, so shape checks work unchanged.
+    models' :meth:`~matfit.models.AbstractBSDF.eval_pairs`. XLA then keeps one array per
+    component instead of an interleaved ``(..., 3)`` layout, which it fuses far better on CPUs.
+    ``shape`` is that of the equivalent ``(..., 3)`` array, so shape checks work unchanged.
+
+    Parameters
+    ----------
+    x, y, z : array_like
+        The components, of one (broadcastable) shape ``(...)``.
 
     Examples
     --------
@@ -82,21 +176,144 @@ class Vec3:
 
     @classmethod
     def from_array(cls, v):
-        """Split a ``(..., 3)`` array into its components."""
+        """Split a ``(..., 3)`` array into its components.
+
+        Parameters
+        ----------
+        v : array_like, shape (..., 3)
+            Vectors (converted to a JAX array).
+
+        Returns
+        -------
+        Vec3
+            Its components ``v[..., 0]``, ``v[..., 1]``, ``v[..., 2]``.
+
+        Examples
+        --------
+        >>> import jax.numpy as jnp
+        >>> from matfit._math import Vec3
+        >>> float(Vec3.from_array(jnp.array([0.0, 0.6, 0.8])).y)
+        0.6...
+        """
         v = jnp.asarray(v)
         return cls(v[..., 0], v[..., 1], v[..., 2])
 
     def to_array(self):
-        """The equivalent ``(..., 3)`` array (a copy into the interleaved layout)."""
+        """The equivalent ``(..., 3)`` array (a copy into the interleaved layout).
+
+        Returns
+        -------
+        jax.Array, shape (..., 3)
+            ``stack([x, y, z], axis=-1)``.
+
+        Examples
+        --------
+        >>> from matfit._math import Vec3
+        >>> Vec3(0.0, 0.0, 1.0).to_array().tolist()
+        [0.0, 0.0, 1.0]
+        """
         return jnp.stack([self.x, self.y, self.z], axis=-1)
 
     @property
     def shape(self):
+        """Shape ``(..., 3)`` of the equivalent array."""
         return tuple(jnp.broadcast_shapes(jnp.shape(self.x), jnp.shape(self.y), jnp.shape(self.z))) + (3,)
 
     @property
     def dtype(self):
+        """Common dtype of the components."""
         return jnp.result_type(self.x, self.y, self.z)
+
+    def tan_sq(self, sx=1.0, sy=1.0):
+        """``(v_x s_x)^2 + (v_y s_y)^2``: the tangential part of the stretched squared length that
+        every microfacet distribution reads.
+
+        Parameters
+        ----------
+        sx, sy : array_like, optional
+            Scales along x and y (default 1: the squared sine of a unit vector).
+
+        Returns
+        -------
+        jax.Array, shape (...)
+
+        Examples
+        --------
+        >>> from matfit._math import Vec3
+        >>> round(float(Vec3(0.6, 0.0, 0.8).tan_sq(2.0, 1.0)), 6)
+        1.44
+        """
+        return sq(self.x * sx) + sq(self.y * sy)
+
+    def visible(self, m):
+        r"""Smith's local visibility indicator :math:`\chi^+((v\cdot m)(v\cdot n))` of this
+        direction ``v`` for microfacets of normal ``m``.
+
+        Parameters
+        ----------
+        m : array_like, shape (..., 3), or Vec3
+            Microfacet normals.
+
+        Returns
+        -------
+        jax.Array of bool, shape (...)
+
+        Examples
+        --------
+        >>> from matfit._math import Vec3
+        >>> bool(Vec3(0.6, 0.0, 0.8).visible(Vec3(0.0, 0.0, 1.0)))
+        True
+        """
+        return dot(self, m) * self.z > 0
+
+    def along_azimuth(self, a_x, a_y):
+        r"""``a_x cos^2 phi + a_y sin^2 phi`` at this direction's azimuth :math:`\phi`: the value
+        of a quantity that is ``a_x`` along x and ``a_y`` along y (Blinn-Phong's exponent).
+
+        Within machine epsilon of the normal the azimuth is irrelevant and ``a_x`` is taken (the
+        quotient's derivative ``-x^2 / (x^2 + y^2)^2`` would underflow to 0/0 there).
+
+        Parameters
+        ----------
+        a_x, a_y : array_like
+            The quantity along x and along y.
+
+        Returns
+        -------
+        jax.Array, shape (...)
+
+        Examples
+        --------
+        >>> from matfit._math import Vec3
+        >>> float(Vec3(0.0, 0.6, 0.8).along_azimuth(2.0, 5.0))
+        5.0
+        """
+        rxy2 = sq(self.x) + sq(self.y)
+        big = rxy2 > jnp.finfo(jnp.result_type(rxy2)).eps ** 2
+        c2 = jnp.where(big, sq(self.x) / jnp.where(big, rxy2, 1), 1.0)
+        return a_x * c2 + a_y * (1 - c2)
+
+    def where_up(self, ok):
+        """This direction where ``ok``, else the normal ``(0, 0, 1)``: the first half of the
+        double-where pattern for directions.
+
+        Parameters
+        ----------
+        ok : array_like of bool, shape (...)
+            Where to keep the direction.
+
+        Returns
+        -------
+        Vec3
+
+        Examples
+        --------
+        >>> import jax.numpy as jnp
+        >>> from matfit._math import Vec3
+        >>> Vec3(0.6, 0.0, 0.8).where_up(jnp.array(False)).to_array().tolist()
+        [0.0, 0.0, 1.0]
+        """
+        return Vec3(jnp.where(ok, self.x, 0), jnp.where(ok, self.y, 0), jnp.where(ok, self.z, 1))
 
     def __getitem__(self, idx):
         if not (isinstance(idx, tuple) and len(idx) == 2 and idx[0] is Ellipsis and isinstance(idx[1], int)):
@@ -113,10 +330,42 @@ class Vec3:
         return Vec3(-self.x, -self.y, -self.z)
 
     def tree_flatten(self):
+        """Pytree children ``(x, y, z)`` and no static data.
+
+        Returns
+        -------
+        tuple
+            ``((x, y, z), None)``.
+
+        Examples
+        --------
+        >>> from matfit._math import Vec3
+        >>> Vec3(1.0, 2.0, 3.0).tree_flatten()
+        ((1.0, 2.0, 3.0), None)
+        """
         return (self.x, self.y, self.z), None
 
     @classmethod
     def tree_unflatten(cls, aux, children):
+        """Rebuild from :meth:`tree_flatten`'s output.
+
+        Parameters
+        ----------
+        aux : None
+            Static data (none).
+        children : sequence
+            The components ``(x, y, z)``.
+
+        Returns
+        -------
+        Vec3
+
+        Examples
+        --------
+        >>> from matfit._math import Vec3
+        >>> float(Vec3.tree_unflatten(None, (1.0, 2.0, 3.0)).z)
+        3.0
+        """
         return cls(*children)
 
 
@@ -130,9 +379,17 @@ class IsoDir:
     ``alpha_x`` and so must be isotropic). It carries no azimuth, so Smith's visibility indicator
     :math:`\chi^+((v\cdot m)(v\cdot n))` becomes :math:`v_z > 0`: exact where ``m`` is the
     reflection half vector of ``v`` and another direction above the surface (there
-    :math:`v\cdot m = \lVert v + w\rVert / 2 > 0`), the only place :mod:`matfit.fast` builds
-    it. A kernel then reads one or two arrays per direction instead of three, and computes no
-    dot products (``docs/performance.md``). Only ``v[..., 2]`` is defined.
+    :math:`v\cdot m = \lVert v + w\rVert / 2 > 0`), the only place
+    :meth:`~matfit.models.SoAPairs.isotropic` builds it. A kernel then reads one or two arrays
+    per direction instead of three, and computes no dot products (``docs/performance.md``).
+    Only ``v[..., 2]`` is defined.
+
+    Parameters
+    ----------
+    z : array_like
+        Cosine of the polar angle.
+    t2 : array_like
+        Squared sine of the polar angle.
 
     Examples
     --------
@@ -151,19 +408,125 @@ class IsoDir:
 
     @classmethod
     def from_cos(cls, z):
-        """The direction of cosine ``z`` (a unit vector): ``t2 = 1 - z^2``, clamped at 0. Accurate
-        in absolute terms only (for ``z`` near 1 in float32, ``t2`` is off by ~1e-7), enough
-        where ``t2`` is scaled by ``alpha^2`` and added to ``z^2`` (``Lambda``, ``G1``), not for
-        the half vector of ``D``, whose ``t2`` is divided by ``alpha^2``."""
+        """The direction of cosine ``z`` (a unit vector): ``t2 = 1 - z^2``, clamped at 0.
+
+        Accurate in absolute terms only (for ``z`` near 1 in float32, ``t2`` is off by ~1e-7),
+        enough where ``t2`` is scaled by ``alpha^2`` and added to ``z^2`` (``Lambda``, ``G1``),
+        not for the half vector of ``D``, whose ``t2`` is divided by ``alpha^2``.
+
+        Parameters
+        ----------
+        z : array_like
+            Cosines.
+
+        Returns
+        -------
+        IsoDir
+
+        Examples
+        --------
+        >>> from matfit._math import IsoDir
+        >>> round(float(IsoDir.from_cos(0.8).t2), 6)
+        0.36
+        """
         return cls(z, jnp.maximum(1 - z * z, 0))
 
     @property
     def shape(self):
+        """Shape ``(..., 3)`` of the equivalent direction array."""
         return tuple(jnp.broadcast_shapes(jnp.shape(self.z), jnp.shape(self.t2))) + (3,)
 
     @property
     def dtype(self):
+        """Common dtype of ``z`` and ``t2``."""
         return jnp.result_type(self.z, self.t2)
+
+    def tan_sq(self, sx=1.0, sy=None):
+        """``t2 s_x^2``: :meth:`Vec3.tan_sq` of an isotropic scale (``sy`` is not read).
+
+        Parameters
+        ----------
+        sx : array_like, optional
+            The isotropic scale (default 1).
+        sy : array_like, optional
+            Ignored (equal to ``sx`` for the isotropic distributions that read an IsoDir).
+
+        Returns
+        -------
+        jax.Array, shape (...)
+
+        Examples
+        --------
+        >>> from matfit._math import IsoDir
+        >>> round(float(IsoDir(0.8, 0.36).tan_sq(2.0)), 6)
+        1.44
+        """
+        return self.t2 * sq(sx)
+
+    def visible(self, m):
+        """:meth:`Vec3.visible` without an azimuth: ``v_z > 0`` (``m`` is this direction's
+        reflection half vector with another direction above the surface, so ``v . m > 0``).
+
+        Parameters
+        ----------
+        m : IsoDir
+            The half vector (not read).
+
+        Returns
+        -------
+        jax.Array of bool, shape (...)
+
+        Examples
+        --------
+        >>> from matfit._math import IsoDir
+        >>> bool(IsoDir(0.8, 0.36).visible(IsoDir(1.0, 0.0)))
+        True
+        """
+        return self.z > 0
+
+    def along_azimuth(self, a_x, a_y):
+        """:meth:`Vec3.along_azimuth` without an azimuth: ``a_x`` (an IsoDir belongs to an
+        isotropic distribution, where ``a_x == a_y``).
+
+        Parameters
+        ----------
+        a_x, a_y : array_like
+            The quantity along x and along y (``a_y`` is not read).
+
+        Returns
+        -------
+        array_like
+            ``a_x``.
+
+        Examples
+        --------
+        >>> from matfit._math import IsoDir
+        >>> IsoDir(0.8, 0.36).along_azimuth(2.0, 2.0)
+        2.0
+        """
+        return a_x
+
+    def where_up(self, ok):
+        """This direction where ``ok``, else the normal (``z = 1``, ``t2 = 0``).
+
+        Parameters
+        ----------
+        ok : array_like of bool, shape (...)
+            Where to keep the direction.
+
+        Returns
+        -------
+        IsoDir
+
+        Examples
+        --------
+        >>> import jax.numpy as jnp
+        >>> from matfit._math import IsoDir
+        >>> d = IsoDir(0.8, 0.36).where_up(jnp.array(False))
+        >>> float(d.z), float(d.t2)
+        (1.0, 0.0)
+        """
+        return IsoDir(jnp.where(ok, self.z, 1), jnp.where(ok, self.t2, 0))
 
     def __getitem__(self, idx):
         if not (isinstance(idx, tuple) and len(idx) == 2 and idx[0] is Ellipsis and idx[1] in (2, -1)):
@@ -171,33 +534,207 @@ class IsoDir:
         return self.z
 
     def tree_flatten(self):
+        """Pytree children ``(z, t2)`` and no static data.
+
+        Returns
+        -------
+        tuple
+            ``((z, t2), None)``.
+
+        Examples
+        --------
+        >>> from matfit._math import IsoDir
+        >>> IsoDir(0.8, 0.36).tree_flatten()
+        ((0.8, 0.36), None)
+        """
         return (self.z, self.t2), None
 
     @classmethod
     def tree_unflatten(cls, aux, children):
+        """Rebuild from :meth:`tree_flatten`'s output.
+
+        Parameters
+        ----------
+        aux : None
+            Static data (none).
+        children : sequence
+            ``(z, t2)``.
+
+        Returns
+        -------
+        IsoDir
+
+        Examples
+        --------
+        >>> from matfit._math import IsoDir
+        >>> float(IsoDir.tree_unflatten(None, (0.8, 0.36)).z)
+        0.8
+        """
         return cls(*children)
 
 
-def tan_sq(v, sx=1.0, sy=1.0):
-    """``(v_x s_x)^2 + (v_y s_y)^2`` of a ``(..., 3)`` array, :class:`Vec3` or :class:`IsoDir`
-    (there ``t2 s_x^2``: isotropic scales only): the tangential part of the stretched squared
-    length that every microfacet distribution reads."""
-    if isinstance(v, IsoDir):
-        return v.t2 * sq(sx)
-    return sq(v[..., 0] * sx) + sq(v[..., 1] * sy)
+def as_direction(v):
+    """The direction object of ``v``: a :class:`Vec3` or :class:`IsoDir` as it is, a ``(..., 3)``
+    array as the :class:`Vec3` of its components (views ``v[..., i]``, no conversion, so that the
+    arithmetic on them is that on the array).
+
+    The one place that tells the direction forms apart: the distributions call the methods of
+    what it returns and never test a type.
+
+    Parameters
+    ----------
+    v : array_like, shape (..., 3), Vec3 or IsoDir
+        A direction.
+
+    Returns
+    -------
+    Vec3 or IsoDir
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit._math import IsoDir, as_direction
+    >>> type(as_direction(jnp.array([0.0, 0.6, 0.8]))).__name__
+    'Vec3'
+    >>> d = IsoDir(0.8, 0.36)
+    >>> as_direction(d) is d
+    True
+    """
+    if isinstance(v, (Vec3, IsoDir)):
+        return v
+    return Vec3(v[..., 0], v[..., 1], v[..., 2])
+
+
+def normalize(v):
+    """Unit vector along ``v``; vectors shorter than the dtype's machine epsilon (a half vector
+    of nearly opposite unit directions) map to ``(0, 0, 1)`` with finite gradients (the
+    derivative of ``v/|v|`` grows as ``1/|v|``).
+
+    Parameters
+    ----------
+    v : array_like, shape (..., 3), or Vec3
+        Vectors.
+
+    Returns
+    -------
+    jax.Array, shape (..., 3), or Vec3
+        Unit vectors, of the form of ``v``.
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp, numpy as np
+    >>> from matfit._math import normalize
+    >>> u = normalize(jnp.array([[3.0, 0.0, 4.0], [0.0, 0.0, 0.0]]))  # a zero vector maps to +z
+    >>> np.asarray(u, float).round(6).tolist()
+    [[0.6, 0.0, 0.8], [0.0, 0.0, 1.0]]
+    """
+    n2 = dot(v, v)
+    ok = n2 > jnp.finfo(jnp.result_type(n2)).eps ** 2
+    inv = jnp.where(ok, jax.lax.rsqrt(jnp.where(ok, n2, 1)), 0)
+    d = as_direction(v)
+    if d is v:  # a direction object: scaled component by component
+        return Vec3(d.x * inv, d.y * inv, d.z * inv).where_up(ok)
+    # an array keeps its interleaved layout: one product and one select over (..., 3)
+    u = v * inv[..., None]
+    return jnp.where(ok[..., None], u, up_like(u))
+
+
+def up_like(v):
+    """The normal ``(0, 0, 1)`` in the shape and dtype of the direction array ``v``.
+
+    Parameters
+    ----------
+    v : array_like, shape (..., 3)
+        Directions.
+
+    Returns
+    -------
+    jax.Array, shape (..., 3)
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit._math import up_like
+    >>> up_like(jnp.ones((2, 3))).tolist()
+    [[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]]
+    """
+    return jnp.zeros_like(v).at[..., 2].set(1)
+
+
+def mirror(w):
+    """``w`` reflected about the normal ``(0, 0, 1)``: ``(-w_x, -w_y, w_z)``, the direction of a
+    perfect mirror.
+
+    Parameters
+    ----------
+    w : array_like, shape (..., 3)
+        Directions.
+
+    Returns
+    -------
+    jax.Array, shape (..., 3)
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit._math import mirror
+    >>> mirror(jnp.array([0.5, 0.25, 0.5])).tolist()
+    [-0.5, -0.25, 0.5]
+    """
+    return w * jnp.array([-1, -1, 1], w.dtype)
 
 
 def reflect(wo, m):
-    """Mirror ``wo`` about the unit normal ``m``: ``2 (wo.m) m - wo``."""
+    """Mirror ``wo`` about the unit normal ``m``: ``2 (wo.m) m - wo``.
+
+    Parameters
+    ----------
+    wo : array_like, shape (..., 3)
+        Directions (pointing away from the surface).
+    m : array_like, shape (..., 3)
+        Unit normals.
+
+    Returns
+    -------
+    jax.Array, shape (..., 3)
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp, numpy as np
+    >>> from matfit._math import reflect
+    >>> np.asarray(reflect(jnp.array([0.6, 0.0, 0.8]), jnp.array([0.0, 0.0, 1.0])), float).round(6).tolist()
+    [-0.6, 0.0, 0.8]
+    """
     return 2 * dot(wo, m)[..., None] * m - wo
 
 
 def refract(wi, n, eta):
     """Refract ``wi`` (pointing away from the surface) through the normal ``n``.
 
-    ``eta`` is the relative index of the side the refracted ray enters over the side of ``wi``,
-    after flipping ``n`` to ``wi``'s side (pbrt-v4 convention). Returns ``(wt, ok)`` with ``ok``
-    false under total internal reflection (``wt`` is then an arbitrary unit vector).
+    Parameters
+    ----------
+    wi : array_like, shape (..., 3)
+        Unit directions, pointing away from the surface.
+    n : array_like, shape (..., 3)
+        Unit normals; flipped to ``wi``'s side first.
+    eta : array_like, shape (...)
+        Relative index of the side the refracted ray enters over the side of ``wi``, after
+        flipping ``n`` to ``wi``'s side (pbrt-v4 convention).
+
+    Returns
+    -------
+    wt : jax.Array, shape (..., 3)
+        The refracted unit direction (an arbitrary unit vector where ``ok`` is false).
+    ok : jax.Array of bool, shape (...)
+        False under total internal reflection.
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit._math import refract
+    >>> wt, ok = refract(jnp.array([0.6, 0.0, 0.8]), jnp.array([0.0, 0.0, 1.0]), jnp.array(1.5))
+    >>> round(float(wt[0]), 6), bool(ok)  # Snell: sin theta_t = 0.6 / 1.5
+    (-0.4, True)
     """
     cos_i = dot(n, wi)
     flip = cos_i < 0
@@ -213,26 +750,50 @@ def refract(wi, n, eta):
 
 
 def flip_up(v):
-    """``v`` mirrored through the origin when it points below the surface (z < 0)."""
+    """``v`` mirrored through the origin when it points below the surface (z < 0).
+
+    Parameters
+    ----------
+    v : array_like, shape (..., 3)
+        Vectors.
+
+    Returns
+    -------
+    jax.Array, shape (..., 3)
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit._math import flip_up
+    >>> flip_up(jnp.array([0.5, 0.25, -0.5])).tolist()
+    [-0.5, -0.25, 0.5]
+    """
     return jnp.where((v[..., 2] < 0)[..., None], -v, v)
 
 
-def sq(x):
-    return x * x
-
-
-def as_float(x, like=None):
-    """``x`` as a floating JAX array (dtype of ``like`` when given)."""
-    x = jnp.asarray(x)
-    if like is not None:
-        return x.astype(jnp.result_type(like))
-    if not jnp.issubdtype(x.dtype, jnp.floating):
-        x = x.astype(jnp.result_type(float))
-    return x
-
-
 def uniform_to_disk(u1, u2):
-    """Concentric (Shirley-Chiu) map of the unit square to the unit disk."""
+    """Concentric (Shirley-Chiu) map of the unit square to the unit disk.
+
+    Parameters
+    ----------
+    u1, u2 : array_like
+        Uniform numbers in [0, 1).
+
+    Returns
+    -------
+    x, y : jax.Array
+        A point of the unit disk (uniform in area for uniform ``u1``, ``u2``).
+
+    References
+    ----------
+    - P. Shirley, K. Chiu, "A Low Distortion Map Between Disk and Square", JGT 2(3), 1997.
+
+    Examples
+    --------
+    >>> from matfit._math import uniform_to_disk
+    >>> [round(float(c), 6) for c in uniform_to_disk(1.0, 0.5)]
+    [1.0, 0.0]
+    """
     a = 2 * u1 - 1
     b = 2 * u2 - 1
     big_a = jnp.abs(a) > jnp.abs(b)
@@ -242,7 +803,24 @@ def uniform_to_disk(u1, u2):
 
 
 def cosine_hemisphere(u1, u2):
-    """Cosine-weighted direction on the upper hemisphere, pdf = cos(theta)/pi."""
+    """Cosine-weighted direction on the upper hemisphere (Malley's method), pdf = cos(theta)/pi.
+
+    Parameters
+    ----------
+    u1, u2 : array_like
+        Uniform numbers in [0, 1).
+
+    Returns
+    -------
+    jax.Array, shape (..., 3)
+        Unit directions with ``z >= 0``.
+
+    Examples
+    --------
+    >>> from matfit._math import cosine_hemisphere
+    >>> (cosine_hemisphere(0.5, 0.5) + 0.0).tolist()  # the disk's centre: the normal
+    [0.0, 0.0, 1.0]
+    """
     x, y = uniform_to_disk(u1, u2)
     z = safe_sqrt(1 - x * x - y * y)
     return jnp.stack([x, y, z], axis=-1)

@@ -46,6 +46,16 @@ def soa_pairs(wo, wi, dtype=None, devices=None) -> SoAPairs:
         Devices to split the batch over (default: every device of the default backend; see
         :func:`matfit.parallel.use_host_devices` for the CPU cores).
 
+    Returns
+    -------
+    SoAPairs
+        The pairs, padded to a multiple of the device count (``n`` valid ones) and sharded.
+
+    Raises
+    ------
+    ParameterError
+        For directions that are not ``(N, 3)`` arrays.
+
     Examples
     --------
     >>> import numpy as np
@@ -70,7 +80,24 @@ def soa_pairs(wo, wi, dtype=None, devices=None) -> SoAPairs:
 
 def supports_soa(model) -> bool:
     """True when ``model`` evaluates prepared pairs channel by channel on component arrays
-    (its :attr:`~matfit.models.AbstractBSDF.pair_kernels`)."""
+    (its :attr:`~matfit.models.AbstractBSDF.pair_kernels`).
+
+    Parameters
+    ----------
+    model : AbstractBSDF
+        Any matfit model.
+
+    Returns
+    -------
+    bool
+
+    Examples
+    --------
+    >>> from matfit.models import Lambert, RoughDielectric
+    >>> from matfit.fast import supports_soa
+    >>> supports_soa(Lambert(0.5)), supports_soa(RoughDielectric(0.2, 1.5))
+    (True, False)
+    """
     return bool(model.pair_kernels)
 
 
@@ -80,6 +107,23 @@ def channel_model(model: AbstractBSDF, c: int) -> AbstractBSDF:
     Per-channel parameters are the array leaves whose last axis has the model's channel count
     ``C`` (> 1); scalar and batch parameters are kept. Every model's channels are independent in
     ``eval``, so ``channel_model(m, c).eval(wo, wi)[..., 0] == m.eval(wo, wi)[..., c]``.
+
+    Parameters
+    ----------
+    model : AbstractBSDF
+        Any matfit model.
+    c : int
+        The channel, ``0 <= c < model.channels``.
+
+    Returns
+    -------
+    AbstractBSDF
+        A model of the same structure with one channel (``model`` itself when it has one).
+
+    Raises
+    ------
+    ParameterError
+        For a channel out of range.
 
     Examples
     --------
@@ -104,9 +148,24 @@ def channel_model(model: AbstractBSDF, c: int) -> AbstractBSDF:
 
 
 def eval_channel(model: AbstractBSDF, pairs: SoAPairs, c: int):
-    """Channel ``c`` of ``model.eval`` on SoA pairs, shape ``(n,)``, with the direction-only
-    quantities (half vector, Fresnel cosine) taken from ``pairs``. Only for models that
-    :func:`supports_soa` accepts; traced alone it is one single-output loop.
+    """Channel ``c`` of ``model.eval`` on SoA pairs, with the direction-only quantities (half
+    vector, Fresnel cosine) taken from ``pairs``.
+
+    Only for models that :func:`supports_soa` accepts; traced alone it is one single-output loop.
+
+    Parameters
+    ----------
+    model : AbstractBSDF
+        A model with pair kernels.
+    pairs : SoAPairs
+        From :func:`soa_pairs` (or :meth:`SoAPairs.of <matfit.models.SoAPairs.of>`).
+    c : int
+        The channel.
+
+    Returns
+    -------
+    jax.Array, shape (n_padded,)
+        The channel's values on every pair (padding included).
 
     Examples
     --------

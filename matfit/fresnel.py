@@ -21,6 +21,8 @@ from ._math import safe_div, safe_sqrt, sq
 from ._check import check_range
 from .errors import ParameterError
 
+__all__ = ["fresnel_dielectric", "fresnel_conductor", "fresnel_schlick", "fresnel_dielectric_average", "clamp_cos", "FresnelAngle"]
+
 
 def fresnel_dielectric(cos_theta_i, eta):
     r"""Unpolarized Fresnel reflectance of a smooth dielectric interface.
@@ -71,7 +73,24 @@ def fresnel_dielectric(cos_theta_i, eta):
 
 
 def clamp_cos(cos_theta):
-    """``|cos_theta|`` clamped to [0, 1]: the cosine every Fresnel formula here reads."""
+    """``|cos_theta|`` clamped to [0, 1]: the cosine every Fresnel formula here reads.
+
+    Parameters
+    ----------
+    cos_theta : array_like
+        Cosines of any sign.
+
+    Returns
+    -------
+    jax.Array
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit.fresnel import clamp_cos
+    >>> clamp_cos(jnp.array([-0.5, 1.5])).tolist()
+    [0.5, 1.0]
+    """
     return jnp.clip(jnp.abs(jnp.asarray(cos_theta)), 0, 1)
 
 
@@ -82,6 +101,15 @@ class FresnelAngle(NamedTuple):
     :func:`fresnel_conductor` takes one in place of the cosine: where the angle depends only on
     the directions (:class:`matfit.fast.SoAPairs`), they are computed once for every channel
     and every parameter value instead of in each kernel.
+
+    Attributes
+    ----------
+    c : jax.Array
+        :math:`|\cos\theta|` clamped to [0, 1].
+    cos2 : jax.Array
+        ``c**2``.
+    sin2 : jax.Array
+        ``1 - cos2``.
 
     Examples
     --------
@@ -101,18 +129,63 @@ class FresnelAngle(NamedTuple):
 
     @classmethod
     def of(cls, cos_theta) -> "FresnelAngle":
-        """The terms of the cosine(s) ``cos_theta`` (any sign; its absolute value is used)."""
+        """The terms of the cosine(s) ``cos_theta`` (any sign; its absolute value is used).
+
+        Parameters
+        ----------
+        cos_theta : array_like
+            Cosines.
+
+        Returns
+        -------
+        FresnelAngle
+
+        Examples
+        --------
+        >>> from matfit.fresnel import FresnelAngle
+        >>> float(FresnelAngle.of(-0.5).cos2)
+        0.25
+        """
         return cls.of_clamped(clamp_cos(cos_theta))
 
     @classmethod
     def of_clamped(cls, c) -> "FresnelAngle":
         """The terms of ``c`` = :func:`clamp_cos` of a cosine (stored once per pair: the two
-        products are cheaper to redo than to read from memory for a million pairs)."""
+        products are cheaper to redo than to read from memory for a million pairs).
+
+        Parameters
+        ----------
+        c : array_like
+            A clamped cosine, in [0, 1].
+
+        Returns
+        -------
+        FresnelAngle
+
+        Examples
+        --------
+        >>> from matfit.fresnel import FresnelAngle
+        >>> float(FresnelAngle.of_clamped(0.5).sin2)
+        0.75
+        """
         cos2 = c * c
         return cls(c, cos2, 1 - cos2)
 
     def expand(self) -> "FresnelAngle":
-        """The terms with a trailing axis of length 1 (to broadcast against channels)."""
+        """The terms with a trailing axis of length 1 (to broadcast against channels).
+
+        Returns
+        -------
+        FresnelAngle
+            Each term of shape ``(..., 1)``.
+
+        Examples
+        --------
+        >>> import jax.numpy as jnp
+        >>> from matfit.fresnel import FresnelAngle
+        >>> FresnelAngle.of(jnp.array([0.5, 0.8])).expand().c.shape
+        (2, 1)
+        """
         return FresnelAngle(*(x[..., None] for x in self))
 
 
@@ -139,13 +212,18 @@ def fresnel_conductor(cos_theta_i, eta, k):
         Real and imaginary parts of the relative complex index (per channel, last axis),
         ``eta > 0``, ``k >= 0``. With ``k = 0`` this equals :func:`fresnel_dielectric`.
 
+    Returns
+    -------
+    jax.Array
+        Reflectance in [0, 1], broadcast over the arguments.
+
     Examples
     --------
     >>> from matfit.fresnel import fresnel_conductor
     >>> import jax.numpy as jnp
     >>> gold = fresnel_conductor(1.0, jnp.array([0.143, 0.374, 1.442]), jnp.array([3.983, 2.385, 1.603]))
-    >>> gold.shape
-    (3,)
+    >>> gold.shape, bool(gold[0] > gold[2])  # reflects red more than blue
+    ((3,), True)
     """
     check_range("fresnel_conductor", "eta", eta, 0.0, lo_open=True)
     check_range("fresnel_conductor", "k", k, 0.0)
@@ -160,8 +238,8 @@ def fresnel_conductor(cos_theta_i, eta, k):
     # eta^2 - k^2 - sin^2 written as t0 = (eta^2 - k^2 - 1) + cos^2: exact for an index-matched
     # surface (eta = 1, k = 0, where F must be exactly 0) and without cancellation near it.
     t0 = (sq(eta) - sq(k) - 1) + cos2
-    # a^2 + b^2 = hypot(t0, u), u = 2 eta k, as sqrt(t0^2 + u^2): no division (a scaled hypot's
-    # two per direction were half the cost of this function). Where t0^2 + u^2 is below the
+    # a^2 + b^2 = hypot(t0, u), u = 2 eta k, as sqrt(t0^2 + u^2): no division (a scaled hypot
+    # divides twice per direction). Where t0^2 + u^2 is below the
     # smallest normal number (|t0| and |u| both < 1.1e-19 in float32) it is max(|t0|, |u|):
     # exact for u = 0, which keeps an index-matched surface at F = 0 at every angle.
     u = 2 * eta * k
@@ -180,26 +258,36 @@ def fresnel_conductor(cos_theta_i, eta, k):
     return jnp.clip(F, 0.0, 1.0)
 
 
-def fresnel_schlick(cos_theta_i, f0):
-    r"""Schlick's approximation :math:`F_0 + (1 - F_0)(1 - \cos\theta)^5`.
+def fresnel_schlick(cos_theta_i, f0, f90=1.0):
+    r"""Schlick's approximation :math:`F_0 + (F_{90} - F_0)(1 - \cos\theta)^5`.
 
     Parameters
     ----------
     cos_theta_i : array_like
-        Cosine of the incidence angle; its absolute value is used.
+        Cosine of the incidence angle; its absolute value is used (:func:`clamp_cos`).
     f0 : array_like
         Reflectance at normal incidence, in [0, 1].
+    f90 : array_like, optional
+        Reflectance at grazing incidence (default 1; the glTF specular extension scales it).
+
+    Returns
+    -------
+    jax.Array
+        The reflectance, broadcast over the arguments.
+
+    References
+    ----------
+    - C. Schlick, "An Inexpensive BRDF Model for Physically-based Rendering", CGF 13(3), 1994.
 
     Examples
     --------
     >>> from matfit.fresnel import fresnel_schlick
-    >>> float(fresnel_schlick(0.0, 0.04))
-    1.0
+    >>> float(fresnel_schlick(0.0, 0.04)), round(float(fresnel_schlick(1.0, 0.04)), 6)
+    (1.0, 0.04)
     """
-    c = jnp.clip(jnp.abs(jnp.asarray(cos_theta_i)), 0, 1)
-    m = 1 - c
+    m = 1 - clamp_cos(cos_theta_i)
     m2 = m * m
-    return f0 + (1 - f0) * (m2 * m2 * m)
+    return f0 + (f90 - f0) * (m2 * m2 * m)
 
 
 def fresnel_dielectric_average(eta, n=64):
@@ -216,6 +304,11 @@ def fresnel_dielectric_average(eta, n=64):
         Relative index (inside / outside) seen by the incident light.
     n : int
         Quadrature order.
+
+    Returns
+    -------
+    jax.Array
+        The average, of the shape of ``eta``.
 
     Examples
     --------

@@ -83,9 +83,10 @@ def curve_readable(wo, wi, values, valid):
     >>> wo, wi, ok, _ = geometry.merl_grid(8, 8, 16)
     >>> wo, wi = wo[ok][None], wi[ok][None]
     >>> v = np.ones(wo.shape[:2] + (3,))
-    >>> curve_readable(wo, wi, v, np.ones(wo.shape[:2], bool)), curve_readable(wo[:, :20], wi[:, :20], v[:, :20],
-    ...                                                                       np.ones((1, 20), bool))
-    (array([ True]), array([False]))
+    >>> a = curve_readable(wo, wi, v, np.ones(wo.shape[:2], bool))
+    >>> b = curve_readable(wo[:, :20], wi[:, :20], v[:, :20], np.ones((1, 20), bool))
+    >>> a.tolist(), b.tolist()
+    ([True], [False])
     """
     keep, _, _, bins = _theta_d_bins(wo, wi, values, valid)
     B = keep.shape[0]

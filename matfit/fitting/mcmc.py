@@ -348,8 +348,8 @@ class LogProb:
         >>> lp = make_log_prob(table, model="lambert", noise="fit")
         >>> lp.labels
         ['albedo[0]', 'albedo[1]', 'albedo[2]', 'noise_scale']
-        >>> lp.to_natural(np.array([0.0, 0.0, 0.0, np.log(0.1)])).round(6)  # albedos at the middle of [0, 1]
-        array([0.5, 0.5, 0.5, 0.1])
+        >>> lp.to_natural(np.array([0.0, 0.0, 0.0, np.log(0.1)])).round(6).tolist()  # albedos mid-range
+        [0.5, 0.5, 0.5, 0.1]
         """
         X = np.asarray(X, dtype=np.float64)
         p = self.par.size

@@ -226,8 +226,8 @@ def robust_fit(table, model, init=None, fixed=None, tied=(), **fit_kwargs):
     >>> from matfit.fitting import robust_fit
     >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
     >>> r = robust_fit(Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1)), "lambert", starts=1)
-    >>> np.round(np.asarray(r.params["albedo"], float), 4)  # pi * 0.1
-    array([0.3142, 0.3142, 0.3142])
+    >>> [round(float(a), 4) for a in r.params["albedo"]]  # pi * 0.1
+    [0.3142, 0.3142, 0.3142]
     """
     if not isinstance(table, Table):
         raise ParameterError(f"robust_fit: table must be a matfit.Table, got {type(table).__name__}")

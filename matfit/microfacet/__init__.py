@@ -9,7 +9,26 @@ DISTRIBUTIONS = {"ggx": GGX, "beckmann": Beckmann, "blinn_phong": BlinnPhong}
 
 
 def make_distribution(name, alpha_x, alpha_y=None):
-    """Build a distribution by name (``"ggx"``, ``"beckmann"``, ``"blinn_phong"``).
+    """Build a distribution by name.
+
+    Parameters
+    ----------
+    name : {"ggx", "beckmann", "blinn_phong"}
+        The distribution (a key of :data:`DISTRIBUTIONS`).
+    alpha_x : array_like
+        Width along x, > 0.
+    alpha_y : array_like, optional
+        Width along y (default: ``alpha_x``, isotropic).
+
+    Returns
+    -------
+    AbstractDistribution
+        A :class:`GGX`, :class:`Beckmann` or :class:`BlinnPhong`.
+
+    Raises
+    ------
+    ValueError
+        For an unknown ``name``.
 
     Examples
     --------

@@ -23,11 +23,32 @@ import jax.scipy.special as jsp
 from .._math import COS_EPS, flip_up, normalize, safe_div, safe_sqrt, sq
 from ._base import AbstractDistribution, normal_from_slopes
 
+__all__ = ["Beckmann", "beckmann_lambda"]
+
 _INV_SQRT_PI = 0.5641895835477563
 
 
 def beckmann_lambda(a2tan2):
-    """Beckmann Smith Lambda as a function of alpha^2 tan^2 theta (shared with Blinn-Phong)."""
+    r"""Beckmann's Smith :math:`\Lambda` as a function of :math:`\alpha^2\tan^2\theta` (shared
+    with Blinn-Phong).
+
+    Parameters
+    ----------
+    a2tan2 : array_like
+        :math:`\alpha^2\tan^2\theta_v \ge 0`.
+
+    Returns
+    -------
+    jax.Array
+        :math:`\Lambda = (\operatorname{erf}(c) - 1)/2 + e^{-c^2}/(2c\sqrt\pi)`,
+        :math:`c = 1/\sqrt{\alpha^2\tan^2\theta}`; 0 at the normal.
+
+    Examples
+    --------
+    >>> from matfit.microfacet.beckmann import beckmann_lambda
+    >>> float(beckmann_lambda(0.0)), round(float(beckmann_lambda(1.0)), 4)
+    (0.0, 0.0251)
+    """
     pos = a2tan2 > 0
     c = jnp.where(pos, jax.lax.rsqrt(jnp.where(pos, a2tan2, 1)), 1)  # c = 1/(alpha tan)
     lam = -0.5 * jsp.erfc(c) + 0.5 * _INV_SQRT_PI * jnp.exp(-c * c) / c
@@ -69,6 +90,16 @@ def _sample_slope_x(cos_t, u, iters=14):
 class Beckmann(AbstractDistribution):
     """Beckmann microfacet distribution, isotropic or anisotropic.
 
+    Visible normals are sampled by stretching ``wo``, inverting the alpha = 1 visible-slope CDF
+    (safeguarded Newton iterations in the erf domain), rotating and unstretching.
+
+    Parameters
+    ----------
+    alpha_x : array_like
+        Width along x, > 0 (clamped to :data:`~matfit.microfacet.ALPHA_MIN`). Differentiable.
+    alpha_y : array_like, optional
+        Width along y (default: ``alpha_x``, isotropic). Differentiable.
+
     Examples
     --------
     >>> import jax.numpy as jnp
@@ -98,7 +129,7 @@ class Beckmann(AbstractDistribution):
         return self._normal_from_radius(r, u[..., 1])
 
     def sample_visible(self, wo, u):
-        """Visible normals: stretch, sample the alpha = 1 visible slopes, rotate, unstretch."""
+        # stretch, sample the alpha = 1 visible slopes, rotate, unstretch
         ax, ay = self._alphas()
         w = flip_up(wo)
         ws = normalize(jnp.stack([ax * w[..., 0], ay * w[..., 1], w[..., 2]], axis=-1))

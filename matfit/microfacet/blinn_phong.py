@@ -17,13 +17,25 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from .._math import IsoDir, sq, tan_sq
+from .._math import as_direction, sq
 from ._base import AbstractDistribution
 from .beckmann import beckmann_lambda
+
+__all__ = ["BlinnPhong"]
 
 
 class BlinnPhong(AbstractDistribution):
     """Normalized Blinn-Phong distribution (exponent ``2/alpha^2 - 2``).
+
+    Smith's Lambda is Beckmann's at the same alpha; keep alpha <= 1 (the exponent is negative
+    beyond). No visible-normal sampling: :meth:`sample_dcos` only.
+
+    Parameters
+    ----------
+    alpha_x : array_like
+        Width along x, > 0 (clamped to :data:`~matfit.microfacet.ALPHA_MIN`). Differentiable.
+    alpha_y : array_like, optional
+        Width along y (default: ``alpha_x``, isotropic). Differentiable.
 
     Examples
     --------
@@ -40,27 +52,17 @@ class BlinnPhong(AbstractDistribution):
         ax, ay = self._alphas()
         return 2 / sq(ax) - 2, 2 / sq(ay) - 2
 
-    def _e_phi(self, m):
-        ex, ey = self.exponent
-        if isinstance(m, IsoDir):  # no azimuth: isotropic
-            return ex
-        rxy2 = sq(m[..., 0]) + sq(m[..., 1])
-        # cos^2 phi; within machine epsilon of the normal the azimuth is irrelevant (and the
-        # quotient's derivative -mx^2/rxy2^2 would underflow to 0/0).
-        big = rxy2 > jnp.finfo(jnp.result_type(rxy2)).eps ** 2
-        c2 = jnp.where(big, sq(m[..., 0]) / jnp.where(big, rxy2, 1), 1.0)
-        return ex * c2 + ey * (1 - c2)
-
     def D(self, m):
         ex, ey = self.exponent
         mz = m[..., 2]
         pos = mz > 0
         # cos^e = exp(e log cos): log cos from sin^2 by log1p keeps float32 accurate at e ~ 1e6.
-        sin2 = jnp.minimum(tan_sq(m), 1.0)
+        m = as_direction(m)
+        sin2 = jnp.minimum(m.tan_sq(), 1.0)
         # Near the normal log1p(-sin^2) is exact; near grazing log(m_z) is (no cancellation).
         near = sq(mz) >= 0.5
         log_cos = jnp.where(near, 0.5 * jnp.log1p(-jnp.where(near, sin2, 0.0)), jnp.log(jnp.where(pos & ~near, mz, 1.0)))
-        d = jnp.sqrt((ex + 2) * (ey + 2)) / (2 * jnp.pi) * jnp.exp(self._e_phi(m) * log_cos)
+        d = jnp.sqrt((ex + 2) * (ey + 2)) / (2 * jnp.pi) * jnp.exp(m.along_azimuth(*self.exponent) * log_cos)
         return jnp.where(pos, d, 0)
 
     def Lambda(self, v):

@@ -21,12 +21,24 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from .._math import flip_up, normalize, safe_sqrt, sq, tan_sq
+from .._math import as_direction, flip_up, normalize, safe_sqrt, sq
 from ._base import AbstractDistribution
+
+__all__ = ["GGX"]
 
 
 class GGX(AbstractDistribution):
     """GGX (Trowbridge-Reitz) microfacet distribution, isotropic or anisotropic.
+
+    Visible normals are sampled by the spherical caps of Dupuy & Benyoub (2023); Smith's
+    :math:`G_1` is evaluated without division by :math:`v_z` (see the module docstring).
+
+    Parameters
+    ----------
+    alpha_x : array_like
+        Width along x, > 0 (clamped to :data:`~matfit.microfacet.ALPHA_MIN`). Differentiable.
+    alpha_y : array_like, optional
+        Width along y (default: ``alpha_x``, isotropic). Differentiable.
 
     Examples
     --------
@@ -46,7 +58,7 @@ class GGX(AbstractDistribution):
     def _D_ratio(self, m):
         ax, ay = self._alphas()
         # 1 / alpha once per model, not a division per normal
-        t = tan_sq(m, 1 / ax, 1 / ay) + sq(m[..., 2])
+        t = as_direction(m).tan_sq(1 / ax, 1 / ay) + sq(m[..., 2])
         return 1.0, jnp.pi * ax * ay * sq(t)
 
     def Lambda(self, v):
@@ -59,7 +71,7 @@ class GGX(AbstractDistribution):
         # al. 2007, Eq. 34, times |v_z| / |v_z|): no division inside, none by v_z, no cancellation.
         ax, ay = self._alphas()
         vz = jnp.abs(v[..., 2])
-        return 2 * vz, vz + jnp.sqrt(sq(v[..., 2]) + tan_sq(v, ax, ay))
+        return 2 * vz, vz + jnp.sqrt(sq(v[..., 2]) + as_direction(v).tan_sq(ax, ay))
 
     def sample_dcos(self, u):
         u1 = u[..., 0]
@@ -67,7 +79,7 @@ class GGX(AbstractDistribution):
         return self._normal_from_radius(r, u[..., 1])
 
     def sample_visible(self, wo, u):
-        """Visible normals by the spherical-cap method of Dupuy & Benyoub (2023)."""
+        # the spherical-cap method of Dupuy & Benyoub (2023)
         ax, ay = self._alphas()
         w = flip_up(wo)
         ws = normalize(jnp.stack([ax * w[..., 0], ay * w[..., 1], w[..., 2]], axis=-1))

@@ -21,6 +21,7 @@ import numpy as np
 
 from .._math import COS_EPS, dot, refract, safe_div
 from ..fresnel import fresnel_dielectric, fresnel_dielectric_average
+from ._pairs import valid_reflection
 from .rough_dielectric import RoughDielectric
 from .smooth_dielectric import SmoothDielectric
 
@@ -31,7 +32,27 @@ COAT_NODES = 24
 
 
 def make_coat(alpha, eta, distribution="ggx", masking="separable"):
-    """A smooth coat when ``alpha`` is a concrete 0, else a rough one."""
+    """A smooth coat when ``alpha`` is a concrete 0, else a rough one.
+
+    Parameters
+    ----------
+    alpha : array_like
+        Width of the coat's distribution (traced values give a rough coat).
+    eta : array_like
+        Index of the coat relative to the outside.
+    distribution, masking : str, optional
+        Options of a rough coat.
+
+    Returns
+    -------
+    SmoothDielectric or RoughDielectric
+
+    Examples
+    --------
+    >>> from matfit.models._coat import make_coat
+    >>> type(make_coat(0.0, 1.5)).__name__, type(make_coat(0.1, 1.5)).__name__
+    ('SmoothDielectric', 'RoughDielectric')
+    """
     try:
         smooth = float(np.max(np.asarray(alpha))) == 0.0
     except Exception:  # traced alpha: rough
@@ -42,21 +63,82 @@ def make_coat(alpha, eta, distribution="ggx", masking="separable"):
 
 
 def is_smooth(coat):
+    """True for a smooth coat (a :class:`SmoothDielectric`).
+
+    Parameters
+    ----------
+    coat : SmoothDielectric or RoughDielectric
+        The coat.
+
+    Returns
+    -------
+    bool
+
+    Examples
+    --------
+    >>> from matfit.models import SmoothDielectric
+    >>> from matfit.models._coat import is_smooth
+    >>> is_smooth(SmoothDielectric(1.5))
+    True
+    """
     return isinstance(coat, SmoothDielectric)
 
 
 def coat_reflection(coat, wo, wi):
-    """Value of the coat's (non-delta) reflection lobe, shape (...)."""
+    """Value of the coat's (non-delta) reflection lobe: 0 for a smooth coat and wherever the
+    pair is not a reflection pair above the surface.
+
+    Parameters
+    ----------
+    coat : SmoothDielectric or RoughDielectric
+        The coat.
+    wo, wi : array_like, shape (..., 3)
+        Unit directions.
+
+    Returns
+    -------
+    jax.Array, shape (...)
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit.models import RoughDielectric
+    >>> from matfit.models._coat import coat_reflection
+    >>> up = jnp.array([0.0, 0.0, 1.0])
+    >>> bool(coat_reflection(RoughDielectric(0.2, 1.5), up, up) > 0)
+    True
+    """
     if is_smooth(coat):
         return jnp.zeros(jnp.broadcast_shapes(wo.shape, wi.shape)[:-1], jnp.result_type(wo))
-    refl = (wo[..., 2] > COS_EPS) & (wi[..., 2] > COS_EPS)
-    return jnp.where(refl, coat.eval(wo, wi)[..., 0], 0)
+    return jnp.where(valid_reflection(wo, wi), coat.eval(wo, wi)[..., 0], 0)
 
 
 def coat_reflection_pairs(coat, pairs):
     """:func:`coat_reflection` of a rough coat on prepared pairs (:class:`~matfit.models.SoAPairs`):
     the lobe ``D G2 / (4 cos cos)`` times the dielectric Fresnel at ``wo . h``; 0 where the pair
-    is invalid or the coat is index-matched (it then reflects nothing)."""
+    is invalid or the coat is index-matched (it then reflects nothing).
+
+    Parameters
+    ----------
+    coat : RoughDielectric
+        The rough coat.
+    pairs : SoAPairs
+        Prepared direction pairs.
+
+    Returns
+    -------
+    jax.Array, shape (...)
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit.models import RoughDielectric, SoAPairs
+    >>> from matfit.models._coat import coat_reflection, coat_reflection_pairs
+    >>> coat = RoughDielectric(0.2, 1.5)
+    >>> wo = jnp.array([[0.0, 0.6, 0.8]]); wi = jnp.array([[0.0, -0.6, 0.8]])
+    >>> bool(jnp.allclose(coat_reflection_pairs(coat, SoAPairs.of(wo, wi)), coat_reflection(coat, wo, wi)))
+    True
+    """
     F = fresnel_dielectric(pairs.cos_d, coat.eta)
     return jnp.where(coat._passthrough(), 0, coat.reflection_lobe(pairs) * F)
 
@@ -67,7 +149,32 @@ def _gl01(n, dtype):
 
 
 def coat_transmittance_table(coat, order=COAT_ORDER, nodes=COAT_NODES, dtype=None):
-    """Tabulated ``(mu, T(mu))`` of a rough coat (see module doc)."""
+    """Tabulated energy transmittance ``(mu, T(mu))`` of a rough coat (see the module docstring).
+
+    Parameters
+    ----------
+    coat : RoughDielectric
+        The rough coat.
+    order : int, optional
+        Gauss-Legendre order per axis of the primary-sample quadrature.
+    nodes : int, optional
+        Number of tabulated cosines, ``mu_j = (j / (nodes - 1))^2``.
+    dtype : dtype, optional
+        Floating type of the table (default: that of ``coat.eta``).
+
+    Returns
+    -------
+    mu, T : jax.Array, shape (nodes,)
+        The cosines and the transmittance there.
+
+    Examples
+    --------
+    >>> from matfit.models import RoughDielectric
+    >>> from matfit.models._coat import coat_transmittance_table
+    >>> mu, T = coat_transmittance_table(RoughDielectric(0.2, 1.5), order=4, nodes=5)
+    >>> mu.shape, bool(0.9 < float(T[-1]) < 1.0)
+    ((5,), True)
+    """
     dtype = jnp.result_type(coat.eta, float) if dtype is None else dtype
     # Nodes crowd towards grazing incidence (mu = s^2), where T changes fastest.
     mu = jnp.linspace(0.0, 1.0, nodes, dtype=dtype) ** 2
@@ -98,7 +205,30 @@ def coat_transmittance_table(coat, order=COAT_ORDER, nodes=COAT_NODES, dtype=Non
 
 
 def coat_transmittance(coat, mu, table=None):
-    """Energy transmittance of the coat at incidence cosine ``mu`` (...)."""
+    """Energy transmittance of the coat at incidence cosine ``mu``: ``1 - F(mu)`` when smooth,
+    the table linearly interpolated when rough.
+
+    Parameters
+    ----------
+    coat : SmoothDielectric or RoughDielectric
+        The coat.
+    mu : array_like
+        Cosines, clamped to [0, 1].
+    table : tuple of jax.Array, optional
+        :func:`coat_transmittance_table` of a rough coat (built when not given).
+
+    Returns
+    -------
+    jax.Array
+        Of the shape of ``mu``.
+
+    Examples
+    --------
+    >>> from matfit.models import SmoothDielectric
+    >>> from matfit.models._coat import coat_transmittance
+    >>> round(float(coat_transmittance(SmoothDielectric(1.5), 1.0)), 6)  # 1 - ((1.5 - 1) / 2.5)^2
+    0.96
+    """
     mu = jnp.clip(jnp.asarray(mu), 0, 1)
     if is_smooth(coat):
         return 1 - fresnel_dielectric(mu, coat.eta)
@@ -114,7 +244,29 @@ def coat_transmittance(coat, mu, table=None):
 
 
 def coat_internal_reflectance(coat, table=None, order=64):
-    """Hemispherical internal reflectance ``R_int = 1 - Tbar / eta^2`` of the coat."""
+    """Hemispherical internal reflectance ``R_int = 1 - Tbar / eta^2`` of the coat.
+
+    Parameters
+    ----------
+    coat : SmoothDielectric or RoughDielectric
+        The coat.
+    table : tuple of jax.Array, optional
+        :func:`coat_transmittance_table` of a rough coat.
+    order : int, optional
+        Gauss-Legendre order of the average over the cosine.
+
+    Returns
+    -------
+    jax.Array
+        A scalar (or the batch shape of ``coat.eta``).
+
+    Examples
+    --------
+    >>> from matfit.models import SmoothDielectric
+    >>> from matfit.models._coat import coat_internal_reflectance
+    >>> round(float(coat_internal_reflectance(SmoothDielectric(1.5))), 3)  # the internal Fresnel average
+    0.596
+    """
     if is_smooth(coat):
         return fresnel_dielectric_average(1 / coat.eta, n=order)
     x, w = _gl01(order, jnp.result_type(coat.eta, float))

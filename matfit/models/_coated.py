@@ -7,7 +7,7 @@ import abc
 
 import jax.numpy as jnp
 
-from .._math import COS_EPS, safe_div
+from .._math import COS_EPS, mirror, safe_div
 from ..fresnel import fresnel_dielectric
 from ._base import AbstractBSDF
 from ._coat import coat_transmittance_table, is_smooth
@@ -19,12 +19,24 @@ class AbstractCoatedBSDF(AbstractBSDF):
     Subclasses give ``_eval_t``/``_pdf_t`` (eval and pdf with the coat's transmittance table
     passed in, so that one sample builds it once), ``_p_coat`` (probability of sampling the coat
     lobe) and ``_sample_under`` (a direction from the lobe under the coat).
+
+    Attributes
+    ----------
+    coat : SmoothDielectric or RoughDielectric
+        The coat, seen from outside.
+
+    Examples
+    --------
+    >>> from matfit.models import Plastic
+    >>> Plastic(0.5).has_delta_lobe, Plastic(0.5, alpha=0.1).has_delta_lobe  # a smooth coat's mirror lobe
+    (True, False)
     """
 
     coat: AbstractBSDF
 
     @property
     def has_delta_lobe(self):
+        """True for a smooth coat, whose reflection is a Dirac lobe."""
         return is_smooth(self.coat)
 
     def _table(self):
@@ -59,7 +71,7 @@ class AbstractCoatedBSDF(AbstractBSDF):
         choose_c = u[..., 0] < pc
         wi_u, ok_u = self._sample_under(wo, u, pc)
         if is_smooth(self.coat):
-            wi_c = wo * jnp.array([-1, -1, 1], wo.dtype)
+            wi_c = mirror(wo)
         else:
             wi_c = self.coat.reflection_sample(wo, u[..., 1:3])
         wi = jnp.where(choose_c[..., None], wi_c, wi_u)

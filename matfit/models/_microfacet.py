@@ -7,24 +7,38 @@ from typing import Optional
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._math import COS_EPS, dot, normalize, reflect, safe_div, where_up
+from .._math import dot, normalize, reflect, safe_div
 from ..microfacet import DISTRIBUTIONS, MASKING_FORMS, make_distribution
 from ._base import AbstractBSDF
+from ._pairs import valid_reflection
 from ._params import as_param, check_choice, check_range
 
 SAMPLING = ("visible", "dcos")
 
 
 class AbstractMicrofacetBSDF(AbstractBSDF):
-    """A model built on one microfacet distribution.
+    """A model built on one microfacet distribution: the distribution's fields, its reflection
+    lobe on prepared pairs, and the sampling of its normals.
 
     Attributes
     ----------
-    alpha : distribution width (x, or both when isotropic), >= 0, differentiable.
-    alpha_y : width along y for anisotropy, or ``None`` (isotropic: tied to ``alpha``).
-    distribution : "ggx", "beckmann" or "blinn_phong" (static).
-    masking : "separable" (Smith product) or "height_correlated" (static).
-    sampling : "visible" (visible normals; GGX and Beckmann) or "dcos" (D cos) (static).
+    alpha : jax.Array
+        Distribution width along x (both axes when isotropic), >= 0; differentiable.
+    alpha_y : jax.Array or None
+        Width along y for anisotropy, or None (isotropic: tied to ``alpha``); differentiable.
+    distribution : {"ggx", "beckmann", "blinn_phong"}
+        The microfacet distribution (static).
+    masking : {"separable", "height_correlated"}
+        Smith masking form (static).
+    sampling : {"visible", "dcos"}
+        Normals from the visible normals of ``wo`` (GGX and Beckmann) or from D cos (static).
+
+    Examples
+    --------
+    >>> from matfit.models import AbstractMicrofacetBSDF, RoughConductor
+    >>> m = RoughConductor(0.3, 1.5, 3.0, distribution="blinn_phong")
+    >>> isinstance(m, AbstractMicrofacetBSDF), m.sampling  # Blinn-Phong samples D cos
+    (True, 'dcos')
     """
 
     alpha: jnp.ndarray
@@ -53,7 +67,19 @@ class AbstractMicrofacetBSDF(AbstractBSDF):
         self.sampling = sampling
 
     def dist(self):
-        """The microfacet distribution object at the current parameters."""
+        """The microfacet distribution at the model's parameters.
+
+        Returns
+        -------
+        matfit.microfacet.AbstractDistribution
+            Of kind :attr:`distribution`, widths ``(alpha, alpha_y)``.
+
+        Examples
+        --------
+        >>> from matfit.models import RoughConductor
+        >>> type(RoughConductor(0.3, 1.5, 3.0, distribution="beckmann").dist()).__name__
+        'Beckmann'
+        """
         return make_distribution(self.distribution, self.alpha, self.alpha_y)
 
     def _sample_m(self, d, wo, u2):
@@ -66,14 +92,55 @@ class AbstractMicrofacetBSDF(AbstractBSDF):
             return d.pdf_visible(wo, m)
         return d.pdf_dcos(m)
 
-
     def reflection_sample(self, wo, u2):
-        """Sample the microfacet reflection lobe: ``wi = reflect(wo, m)`` with ``m`` sampled."""
+        """Sample the microfacet reflection lobe: ``wi = reflect(wo, m)`` with ``m`` sampled as
+        :attr:`sampling` says.
+
+        Parameters
+        ----------
+        wo : array_like, shape (..., 3)
+            Unit directions to the viewer.
+        u2 : array_like, shape (..., 2)
+            Uniform numbers in [0, 1).
+
+        Returns
+        -------
+        jax.Array, shape (..., 3)
+            Unit directions (possibly below the horizon: an invalid sample, pdf 0).
+
+        Examples
+        --------
+        >>> import jax.numpy as jnp
+        >>> from matfit.models import RoughConductor
+        >>> wi = RoughConductor(0.05, 1.5, 3.0).reflection_sample(jnp.array([0.6, 0.0, 0.8]), jnp.array([0.5, 0.5]))
+        >>> bool(wi[0] < -0.5)  # near the mirror direction of a narrow lobe
+        True
+        """
         return reflect(wo, self._sample_m(self.dist(), wo, u2))
 
     def reflection_pdf(self, wo, wi):
-        """Density of :meth:`reflection_sample`: ``pdf_m(h) / (4 wo.h)`` (0 below the horizon)."""
-        ok = (wo[..., 2] > COS_EPS) & (wi[..., 2] > COS_EPS)
+        """Density of :meth:`reflection_sample`: ``pdf_m(h) / (4 wo.h)`` (0 below the horizon).
+
+        Parameters
+        ----------
+        wo, wi : array_like, shape (..., 3)
+            Unit directions.
+
+        Returns
+        -------
+        jax.Array, shape (...)
+            Density in 1/sr.
+
+        Examples
+        --------
+        >>> import jax.numpy as jnp
+        >>> from matfit.models import RoughConductor
+        >>> m = RoughConductor(0.3, 1.5, 3.0)
+        >>> wo = jnp.array([0.0, 0.6, 0.8]); wi = jnp.array([0.0, -0.6, 0.8])
+        >>> bool(jnp.isclose(m.reflection_pdf(wo, wi), m.pdf(wo, wi))), float(m.reflection_pdf(wo, -wi))
+        (True, 0.0)
+        """
+        ok = valid_reflection(wo, wi)
         h = normalize(wo + wi)
         p = safe_div(self._pdf_m(self.dist(), wo, h), 4 * dot(wo, h))
         return jnp.where(ok, p, 0)
@@ -90,6 +157,15 @@ class AbstractMicrofacetBSDF(AbstractBSDF):
         reads only this and the Fresnel cosine. ``1 / (4 cos cos)`` stays a factor of its own:
         inside the quotient, float32 gradients overflow near grazing at alpha = ALPHA_MIN.
 
+        Parameters
+        ----------
+        pairs : SoAPairs
+            Prepared reflection pairs.
+
+        Returns
+        -------
+        jax.Array, shape (...)
+
         Examples
         --------
         >>> import jax.numpy as jnp
@@ -104,8 +180,8 @@ class AbstractMicrofacetBSDF(AbstractBSDF):
             num, den, _ = self.dist().reflection_ratio(wo, wi, h, self.masking)
             keep = ok  # both directions above the surface make their half vector visible from each
         else:
-            ok = pairs.iso[0]
-            wo, wi, h = where_up(ok, pairs.wo), where_up(ok, pairs.wi), where_up(ok, pairs.h)
+            ok = pairs.valid
+            wo, wi, h = pairs.wo.where_up(ok), pairs.wi.where_up(ok), pairs.h.where_up(ok)
             num, den, visible = self.dist().reflection_ratio(wo, wi, h, self.masking)
             keep = ok & visible
         dg = num / jnp.where(keep, den, jnp.inf)

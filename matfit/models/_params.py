@@ -16,28 +16,77 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._check import real_dtype, check_range  # noqa: F401  (re-exported for the models)
+from .._math import as_float
 from ..errors import ParameterError
 
 #: Largest accepted deviation ``|norm(w) - 1|`` of a direction (at least 16 ulp of its dtype).
 UNIT_TOL = 1e-4
 
 
-def as_param(x):
-    """A floating JAX array (float64 when x64 is on and ``x`` is a Python number)."""
-    x = jnp.asarray(x)
-    if not jnp.issubdtype(x.dtype, jnp.floating):
-        x = x.astype(jnp.result_type(float))
-    return x
+#: A model parameter as a floating JAX array (float64 when x64 is on and ``x`` is a Python number).
+as_param = as_float
 
 
 def as_channels(x):
-    """A floating JAX array with at least one axis: the last axis holds the colour channels."""
+    """A floating JAX array with at least one axis: the last axis holds the colour channels.
+
+    Parameters
+    ----------
+    x : array_like
+        A scalar or an array ``(..., C)``.
+
+    Returns
+    -------
+    jax.Array, shape (..., C)
+        A scalar becomes shape ``(1,)``.
+
+    Examples
+    --------
+    >>> from matfit.models._params import as_channels
+    >>> as_channels(0.5).shape
+    (1,)
+    """
     return jnp.atleast_1d(as_param(x))
 
 
-def check_channels(owner, **params):
+def channel_count(*params):
+    """The colour channel count ``C`` of parameters whose last axes broadcast.
+
+    Parameters
+    ----------
+    *params : jax.Array
+        Arrays of shape ``(..., C)`` or ``(..., 1)``.
+
+    Returns
+    -------
+    int
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit.models._params import channel_count
+    >>> channel_count(jnp.ones(1), jnp.ones((4, 3)))
+    3
+    """
+    return jnp.broadcast_shapes(*(jnp.shape(p) for p in params))[-1]
+
+
+def check_channels(owner, **params) -> None:
     """Raise :class:`ParameterError` unless the parameters' colour axes (last axis) broadcast:
-    equal lengths, or 1. ``params`` are arrays or ints (a model's ``channels``)."""
+    equal lengths, or 1.
+
+    Parameters
+    ----------
+    owner : str
+        The model, named first in the message.
+    **params : array_like or int
+        Arrays, or ints (a model's ``channels``).
+
+    Examples
+    --------
+    >>> from matfit.models._params import check_channels
+    >>> check_channels("M", a=[0.1, 0.2, 0.3], b=2.0)
+    """
     lens = {n: (int(v) if isinstance(v, int) else (np.shape(v)[-1] if np.ndim(v) else 1)) for n, v in params.items()}
     c = {n: k for n, k in lens.items() if k != 1}
     if len(set(c.values())) > 1:
@@ -45,7 +94,51 @@ def check_channels(owner, **params):
         raise ParameterError(f"{owner}: the colour channels (last axis) must match or be 1, found {found}")
 
 
-def check_choice(owner, name, value, choices):
+def check_complex_index(owner, eta, k) -> None:
+    """Check a conductor's complex index ``eta + i k``: ``eta > 0``, ``k >= 0`` and colour
+    channels that broadcast.
+
+    Parameters
+    ----------
+    owner : str
+        The model, named first in the message.
+    eta, k : array_like
+        Real and imaginary parts, shape ``(..., C)`` or scalars.
+
+    Raises
+    ------
+    ParameterError
+        A value out of range or channel counts that do not match.
+
+    Examples
+    --------
+    >>> from matfit.models._params import check_complex_index
+    >>> check_complex_index("M", [0.2, 0.9, 1.1], [3.9, 2.4, 2.2])
+    """
+    check_range(owner, "eta", eta, 0.0, lo_open=True)
+    check_range(owner, "k", k, 0.0)
+    check_channels(owner, eta=eta, k=k)
+
+
+def check_choice(owner, name, value, choices) -> None:
+    """Raise :class:`ParameterError` unless ``value`` is one of the strings ``choices``.
+
+    Parameters
+    ----------
+    owner : str
+        The model, named first in the message.
+    name : str
+        The option.
+    value : object
+        Its value.
+    choices : sequence of str
+        The accepted values.
+
+    Examples
+    --------
+    >>> from matfit.models._params import check_choice
+    >>> check_choice("M", "masking", "separable", ("separable", "height_correlated"))
+    """
     if not isinstance(value, str) or value not in choices:
         raise ParameterError(f"{owner}: {name} must be one of {list(choices)}, got {value!r}")
 
@@ -67,10 +160,29 @@ def _concrete(v):
     return isinstance(v, np.ndarray) or (isinstance(v, jax.Array) and not isinstance(v, jax.core.Tracer))
 
 
-def check_directions(owner, **dirs):
+def check_directions(owner, **dirs) -> None:
     """Check direction arguments: arrays with a last axis of length 3 and broadcastable batch
-    shapes; on concrete values also a real dtype, finite entries and unit length
-    (``|norm - 1| <= UNIT_TOL``)."""
+    shapes; on concrete values of the outermost model call also a real dtype, finite entries
+    and unit length (``|norm - 1| <= UNIT_TOL``).
+
+    Parameters
+    ----------
+    owner : str
+        The model method, named first in the message.
+    **dirs : array_like, shape (..., 3)
+        The directions, by argument name.
+
+    Raises
+    ------
+    ParameterError
+        A direction that fails a check.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit.models._params import check_directions
+    >>> check_directions("M.eval", wo=np.array([0.0, 0.0, 1.0]), wi=np.array([[0.6, 0.0, 0.8]]))
+    """
     for name, v in dirs.items():
         if not hasattr(v, "shape"):
             raise ParameterError(f"{owner}: {name} must be an array (numpy or JAX) of shape (..., 3), "
@@ -103,7 +215,30 @@ def check_directions(owner, **dirs):
                                  f"({int((dev > tol).sum())} of {norm.size} off)")
 
 
-def check_u(owner, u, n):
+def check_u(owner, u, n) -> None:
+    """Check a sampler's random numbers: an array ``(..., >= n)`` of reals; on concrete values
+    of the outermost model call also that they lie in [0, 1].
+
+    Parameters
+    ----------
+    owner : str
+        The model method, named first in the message.
+    u : array_like, shape (..., m)
+        The uniform numbers, ``m >= n``.
+    n : int
+        How many the sampler reads per direction.
+
+    Raises
+    ------
+    ParameterError
+        ``u`` that fails a check.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit.models._params import check_u
+    >>> check_u("M.sample", np.array([0.5, 0.25, 0.75]), 3)
+    """
     if not hasattr(u, "shape"):
         raise ParameterError(f"{owner}: u must be an array (numpy or JAX) of shape (..., {n}), found {type(u).__name__}")
     shape = np.shape(u)

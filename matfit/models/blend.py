@@ -5,12 +5,6 @@ r"""Blend: linear interpolation of two BSDFs.
 Sampling picks ``b`` with probability ``w`` (reusing the rescaled ``u[..., 0]`` for the chosen
 model's own lobe choice); the pdf is the exact mixture of the non-delta parts, and a delta lobe
 of either model keeps its discrete probability scaled by its selection probability.
-
-Parameters
-----------
-a, b : matfit models with the same or broadcastable channel counts; each either free of Dirac
-    lobes or a pure delta model (a smooth-coated Plastic/Layered is rejected).
-weight : w in [0, 1], differentiable (scalar or batch-shaped).
 """
 
 from __future__ import annotations
@@ -23,17 +17,30 @@ from ._pairs import SoAPairs
 from ._params import as_param, check_channels, check_directions, check_range, check_u
 from ..errors import ParameterError
 
+__all__ = ["Blend"]
+
 
 class Blend(AbstractBSDF):
     """``(1 - weight) a + weight b``.
+
+    Parameters
+    ----------
+    a : AbstractBSDF; no mixed Dirac lobe; differentiable (its array leaves)
+        The model at ``weight = 0``: free of Dirac lobes or a pure delta model (a smooth-coated
+        Plastic or Layered is rejected).
+    b : AbstractBSDF; no mixed Dirac lobe; differentiable (its array leaves)
+        The model at ``weight = 1``, as ``a``; channel counts equal or 1.
+    weight : array_like, scalar or (...); [0, 1]; differentiable
+        The mixing weight ``w``.
 
     Examples
     --------
     >>> import jax.numpy as jnp
     >>> from matfit.models import Blend, Lambert, RoughConductor
-    >>> m = Blend(Lambert(0.5), RoughConductor(0.2, 1.5, 3.0), 0.25)
-    >>> m.eval(jnp.array([0.0, 0.0, 1.0]), jnp.array([0.0, 0.0, 1.0])).shape
-    (1,)
+    >>> a, b = Lambert(0.5), RoughConductor(0.2, 1.5, 3.0)
+    >>> up = jnp.array([0.0, 0.0, 1.0])
+    >>> bool(jnp.allclose(Blend(a, b, 0.25).eval(up, up), 0.75 * a.eval(up, up) + 0.25 * b.eval(up, up)))
+    True
     """
 
     a: AbstractBSDF
@@ -69,6 +76,7 @@ class Blend(AbstractBSDF):
 
     @property
     def pair_kernels(self):
+        """True when both parts have pair kernels."""
         return self.a.pair_kernels and self.b.pair_kernels
 
     def eval(self, wo, wi):
@@ -81,7 +89,23 @@ class Blend(AbstractBSDF):
         return self.mix(self.a.eval_pairs(pairs), self.b.eval_pairs(pairs))
 
     def mix(self, fa, fb):
-        """``(1 - weight) fa + weight fb`` for values ``fa``, ``fb`` (..., C) of the two parts."""
+        """The blend of values of the two parts: ``(1 - weight) fa + weight fb``.
+
+        Parameters
+        ----------
+        fa, fb : array_like, shape (..., C)
+            Values (``eval``) of ``a`` and ``b``.
+
+        Returns
+        -------
+        jax.Array, shape (..., C)
+
+        Examples
+        --------
+        >>> from matfit.models import Blend, Lambert
+        >>> float(Blend(Lambert(0.5), Lambert(0.1), 0.25).mix(1.0, 3.0)[0])
+        1.5
+        """
         w = self.weight[..., None]
         return (1 - w) * fa + w * fb
 
@@ -90,7 +114,7 @@ class Blend(AbstractBSDF):
         return (1 - self.weight) * self.a.pdf(wo, wi) + self.weight * self.b.pdf(wo, wi)
 
     def energy_factor(self, wo, wi):
-        # Transmission in either part: use the part that transmits (they agree on reflection).
+        # transmission in either part: the part that transmits (they agree on reflection)
         return jnp.maximum(self.a.energy_factor(wo, wi), self.b.energy_factor(wo, wi))
 
     def delta_albedo(self, wo):

@@ -17,15 +17,6 @@ even at :math:`F_0 = 0` (at :math:`\cos\theta_o = 0.4`, :math:`\alpha = 0.1` it 
 capture, not a layered material (see :class:`~matfit.models.Plastic` for a diffuse base under a
 Fresnel-weighted coat).
 
-Parameters
-----------
-albedo : (..., C) in [0, 1], differentiable. Diffuse albedo :math:`\rho` (stored as the field
-    ``diffuse``: ``albedo(wo)`` is the directional-albedo method of every model).
-f0 : (..., C) in [0, 1], differentiable. Normal-incidence specular reflectance :math:`F_0`.
-alpha : float or array, >= 0 (clamped to ``ALPHA_MIN`` inside D), differentiable.
-alpha_y : optional, anisotropic width along y.
-distribution : "ggx" (default) | "beckmann" | "blinn_phong";  masking : "separable" | "height_correlated".
-
 Sampling: the cosine-weighted hemisphere with probability
 :math:`p_d = \bar\rho / (\bar\rho + \bar F_0)` (channel means; 1/2 when both are 0), else the
 lobe's visible normals (or D cos); the pdf is the exact mixture.
@@ -47,11 +38,34 @@ from .._math import COS_EPS, cosine_hemisphere, normalize, safe_div
 from ..fresnel import fresnel_schlick
 from ._microfacet import AbstractMicrofacetBSDF
 from ._pairs import SoAPairs
-from ._params import as_channels, check_channels, check_directions, check_range, check_u
+from ._params import as_channels, channel_count, check_channels, check_directions, check_range, check_u
+from .lambert import cosine_pdf
+
+__all__ = ["DiffuseSpecular"]
 
 
 class DiffuseSpecular(AbstractMicrofacetBSDF):
-    """Lambertian albedo plus a Schlick-Fresnel microfacet lobe (the texel model of captures).
+    r"""Lambertian albedo plus a Schlick-Fresnel microfacet lobe (the texel model of captures).
+
+    Parameters
+    ----------
+    albedo : array_like, scalar or (..., C); [0, 1]; differentiable
+        Diffuse albedo :math:`\rho` per colour channel (stored as the field ``diffuse``:
+        ``albedo(wo)`` is the directional-albedo method of every model).
+    f0 : array_like, scalar or (..., C), default 0.04; [0, 1]; differentiable
+        Normal-incidence specular reflectance :math:`F_0` per colour channel.
+    alpha : array_like, scalar or (...), default 0.2; >= 0; differentiable
+        Width of the microfacet distribution along x (both axes when isotropic): the GGX or
+        Beckmann alpha, not a perceptual roughness; clamped to ``ALPHA_MIN`` = 1e-4 inside D.
+    distribution : {"ggx", "beckmann", "blinn_phong"}, default "ggx"; static, not differentiable
+        The microfacet distribution (:mod:`matfit.microfacet`); Blinn-Phong needs alpha <= 1.
+    masking : {"separable", "height_correlated"}, default "separable"; static, not differentiable
+        Smith masking form (:meth:`~matfit.microfacet.AbstractDistribution.G2`).
+    alpha_y : array_like or None, scalar or (...), default None; >= 0 or None; differentiable
+        Width along y for an anisotropic lobe; None ties it to ``alpha`` (isotropic).
+    sampling : {"visible", "dcos"}, default "visible"; static, not differentiable
+        Normals sampled from the normals visible from ``wo``, or from D cos; "visible" becomes
+        "dcos" for Blinn-Phong, which has no visible-normal sampler.
 
     Examples
     --------
@@ -77,7 +91,7 @@ class DiffuseSpecular(AbstractMicrofacetBSDF):
 
     @property
     def channels(self):
-        return jnp.broadcast_shapes(self.diffuse.shape, self.f0.shape)[-1]
+        return channel_count(self.diffuse, self.f0)
 
     pair_kernels = True
 
@@ -86,7 +100,7 @@ class DiffuseSpecular(AbstractMicrofacetBSDF):
         return self.eval_pairs(SoAPairs.of(wo, wi))
 
     def eval_pairs(self, pairs):
-        ok = pairs.iso[0]
+        ok = pairs.valid
         spec = self.reflection_lobe(pairs)[..., None]
         F = fresnel_schlick(pairs.cos_d[..., None], self.f0)
         return jnp.where(ok[..., None], self.diffuse / jnp.pi, 0) + spec * F
@@ -99,9 +113,7 @@ class DiffuseSpecular(AbstractMicrofacetBSDF):
     def pdf(self, wo, wi):
         check_directions("DiffuseSpecular.pdf", wo=wo, wi=wi)
         pd = self._p_diffuse()
-        ok = (wo[..., 2] > COS_EPS) & (wi[..., 2] > COS_EPS)
-        p_d = jnp.where(ok, jnp.maximum(wi[..., 2], 0) / jnp.pi, 0)
-        return pd * p_d + (1 - pd) * self.reflection_pdf(wo, wi)
+        return pd * cosine_pdf(wo, wi) + (1 - pd) * self.reflection_pdf(wo, wi)
 
     def sample(self, wo, u):
         check_directions("DiffuseSpecular.sample", wo=wo)

@@ -23,20 +23,6 @@ Sampling: a mixture of the cosine-weighted hemisphere, the specular lobe's visib
 the coat lobe's, picked with probabilities proportional to ``(1 - m) / 2``, ``(1 + m) / 2`` and
 ``w_c / 2``; the pdf is the exact mixture.
 
-Parameters
-----------
-base_color : (..., C) in [0, 1], differentiable (the ``baseColorFactor``).
-metallic : [0, 1], differentiable (``metallicFactor``).
-alpha : GGX width of the specular lobe, ``roughnessFactor**2``, > 0, differentiable.
-ior : index of refraction (KHR_materials_ior), default 1.5, differentiable.
-specular : specular factor (KHR_materials_specular), [0, 1], default 1.
-specular_color : (..., C) specular colour factor, default 1.
-clearcoat : clear coat factor (KHR_materials_clearcoat), [0, 1], default 0.
-clearcoat_alpha : GGX width of the coat, ``clearcoatRoughnessFactor**2``, default 0.01.
-masking : Smith form of both lobes, "height_correlated" (default: the specification's V_GGX,
-    ``1 / (2 (|n.l| sqrt(a^2 + (1 - a^2)(n.v)^2) + |n.v| sqrt(a^2 + (1 - a^2)(n.l)^2)))``) or
-    "separable".
-
 References
 ----------
 - The Khronos Group, "glTF 2.0 Specification", Appendix B: BRDF Implementation, 2021.
@@ -53,16 +39,39 @@ from .._math import COS_EPS, cosine_hemisphere, normalize, safe_div
 from ._base import AbstractBSDF
 from ._pairs import SoAPairs
 from ..microfacet import MASKING_FORMS
-from ._params import as_channels, as_param, check_channels, check_choice, check_directions, check_range, check_u
+from ._params import (as_channels, as_param, channel_count, check_channels, check_choice, check_directions, check_range,
+                      check_u)
+from ..fresnel import fresnel_schlick
+from .lambert import cosine_pdf
 from .rough_conductor import RoughConductor
 
-
-def _schlick(f0, f90, c):
-    return f0 + (f90 - f0) * (1 - c) ** 5
+__all__ = ["GltfPBR"]
 
 
 class GltfPBR(AbstractBSDF):
-    """The glTF metallic-roughness BRDF (with the ior, specular and clear coat extensions).
+    r"""The glTF metallic-roughness BRDF (with the ior, specular and clear coat extensions).
+
+    Parameters
+    ----------
+    base_color : array_like, scalar or (..., C); [0, 1]; differentiable
+        The ``baseColorFactor`` :math:`c`, per colour channel.
+    metallic : array_like, scalar or (...), default 0.0; [0, 1]; differentiable
+        The ``metallicFactor`` :math:`m`.
+    alpha : array_like, scalar or (...), default 0.25; > 0; differentiable
+        GGX width :math:`\alpha` of the specular lobe, ``roughnessFactor**2``.
+    ior : array_like, scalar or (...), default 1.5; > 0; differentiable
+        Index of refraction :math:`\eta` (KHR_materials_ior).
+    specular : array_like, scalar or (...), default 1.0; [0, 1]; differentiable
+        Specular factor :math:`w_s` (KHR_materials_specular).
+    specular_color : array_like, scalar or (..., C), default 1.0; >= 0; differentiable
+        Specular colour factor :math:`c_s`, per colour channel (KHR_materials_specular).
+    clearcoat : array_like, scalar or (...), default 0.0; [0, 1]; differentiable
+        Clear coat factor :math:`w_c` (KHR_materials_clearcoat).
+    clearcoat_alpha : array_like, scalar or (...), default 0.01; > 0; differentiable
+        GGX width :math:`\alpha_c` of the coat lobe, ``clearcoatRoughnessFactor**2``.
+    masking : {"height_correlated", "separable"}, default "height_correlated"; static, not differentiable
+        Smith form of both lobes; the default is the specification's visibility term
+        ``V_GGX = 1 / (2 (|n.l| sqrt(a^2 + (1 - a^2)(n.v)^2) + |n.v| sqrt(a^2 + (1 - a^2)(n.l)^2)))``.
 
     Examples
     --------
@@ -108,7 +117,7 @@ class GltfPBR(AbstractBSDF):
 
     @property
     def channels(self):
-        return jnp.broadcast_shapes(self.base_color.shape, self.specular_color.shape)[-1]
+        return channel_count(self.base_color, self.specular_color)
 
     def _lobe(self, alpha):
         # the Fresnel-free GGX lobe D G2 / (4 cos cos) and its sampler, shared with RoughConductor
@@ -117,20 +126,20 @@ class GltfPBR(AbstractBSDF):
     def eval(self, wo, wi):
         check_directions("GltfPBR.eval", wo=wo, wi=wi)
         pairs = SoAPairs.of(wo, wi)
-        ok, cos_o = pairs.iso[0], pairs.iso[1]
+        ok, cos_o = pairs.valid, pairs.cos_o
         vh = pairs.fresnel_angle().c[..., None]
         spec = self._lobe(self.alpha).reflection_lobe(pairs)[..., None]
         c = self.base_color
         f0 = ((self.ior - 1) / (self.ior + 1)) ** 2
         ws = self.specular[..., None]
-        Fd = _schlick(jnp.minimum(f0[..., None] * self.specular_color, 1) * ws, ws, vh)
+        Fd = fresnel_schlick(vh, jnp.minimum(f0[..., None] * self.specular_color, 1) * ws, ws)
         # KHR_materials_specular: the diffuse part loses the largest channel of the Fresnel term
         diel = (1 - jnp.max(Fd, axis=-1, keepdims=True)) * c / jnp.pi + Fd * spec
-        metal = _schlick(c, 1.0, vh) * spec
+        metal = fresnel_schlick(vh, c) * spec
         m = self.metallic[..., None]
         f = (1 - m) * diel + m * metal
         wc = self.clearcoat[..., None]
-        Fc = (_schlick(0.04, 1.0, jnp.clip(cos_o, 0, 1)) * wc[..., 0])[..., None]
+        Fc = (fresnel_schlick(cos_o, 0.04) * wc[..., 0])[..., None]
         coat = self._lobe(self.clearcoat_alpha).reflection_lobe(pairs)[..., None]
         f = (1 - Fc) * f + Fc * coat
         return jnp.where(ok[..., None], f, 0)
@@ -143,9 +152,7 @@ class GltfPBR(AbstractBSDF):
     def pdf(self, wo, wi):
         check_directions("GltfPBR.pdf", wo=wo, wi=wi)
         pd, ps, pc = self._probs()
-        ok = (wo[..., 2] > COS_EPS) & (wi[..., 2] > COS_EPS)
-        p_d = jnp.where(ok, jnp.maximum(wi[..., 2], 0) / jnp.pi, 0)
-        return (pd * p_d + ps * self._lobe(self.alpha).reflection_pdf(wo, wi)
+        return (pd * cosine_pdf(wo, wi) + ps * self._lobe(self.alpha).reflection_pdf(wo, wi)
                 + pc * self._lobe(self.clearcoat_alpha).reflection_pdf(wo, wi))
 
     def sample(self, wo, u):

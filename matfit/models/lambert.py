@@ -2,10 +2,6 @@ r"""Lambertian diffuse reflection.
 
 .. math:: f(\omega_o, \omega_i) = \frac{\rho}{\pi}\quad (\cos\theta_o > 0,\ \cos\theta_i > 0)
 
-Parameters
-----------
-albedo : (..., C), in [0, 1], differentiable. The hemispherical reflectance rho.
-
 Sampling is cosine-weighted (Malley's method, concentric disk map), pdf = cos(theta_i)/pi, so the
 weight is exactly ``albedo``. The model is one-sided: zero when either direction is at or below
 the horizon (|cos| <= ``COS_EPS``).
@@ -21,14 +17,46 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._math import COS_EPS, cosine_hemisphere
+from .._math import cosine_hemisphere
 from ._base import AbstractBSDF
 from ._pairs import valid_reflection
-from ._params import as_channels, check_directions, check_range, check_u
+from ._params import as_channels, channel_count, check_directions, check_range, check_u
+
+__all__ = ["Lambert", "cosine_pdf"]
+
+
+def cosine_pdf(wo, wi):
+    """Density ``cos(theta_i) / pi`` of cosine-weighted hemisphere sampling, 0 unless both
+    directions are above the surface (:func:`~matfit.models.valid_reflection`).
+
+    Parameters
+    ----------
+    wo, wi : array_like, shape (..., 3)
+        Unit directions.
+
+    Returns
+    -------
+    jax.Array, shape (...)
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit.models.lambert import cosine_pdf
+    >>> up = jnp.array([0.0, 0.0, 1.0])
+    >>> round(float(cosine_pdf(up, up) * jnp.pi), 6), float(cosine_pdf(up, -up))
+    (1.0, 0.0)
+    """
+    return jnp.where(valid_reflection(wo, wi), wi[..., 2] / jnp.pi, 0)
 
 
 class Lambert(AbstractBSDF):
-    """Lambertian diffuse BRDF ``albedo / pi``.
+    r"""Lambertian diffuse BRDF ``albedo / pi``.
+
+    Parameters
+    ----------
+    albedo : array_like, scalar or (..., C); [0, 1]; differentiable
+        Hemispherical reflectance :math:`\rho` per colour channel (stored as the field
+        ``reflectance``: ``albedo(wo)`` is the directional-albedo method of every model).
 
     Examples
     --------
@@ -36,8 +64,8 @@ class Lambert(AbstractBSDF):
     >>> from matfit.models import Lambert
     >>> m = Lambert(jnp.array([0.8, 0.5, 0.2]))
     >>> up = jnp.array([0.0, 0.0, 1.0])
-    >>> m.eval(up, up).shape
-    (3,)
+    >>> bool(jnp.allclose(m.eval(up, up) * jnp.pi, m.reflectance))
+    True
     """
 
     reflectance: jnp.ndarray = eqx.field(converter=as_channels)
@@ -48,7 +76,7 @@ class Lambert(AbstractBSDF):
 
     @property
     def channels(self):
-        return self.reflectance.shape[-1]
+        return channel_count(self.reflectance)
 
     pair_kernels = True
 
@@ -57,15 +85,14 @@ class Lambert(AbstractBSDF):
         return self._value(valid_reflection(wo, wi))
 
     def eval_pairs(self, pairs):
-        return self._value(pairs.iso[0])
+        return self._value(pairs.valid)
 
     def _value(self, ok):
         return jnp.where(ok[..., None], self.reflectance / jnp.pi, 0)
 
     def pdf(self, wo, wi):
         check_directions("Lambert.pdf", wo=wo, wi=wi)
-        ok = (wo[..., 2] > COS_EPS) & (wi[..., 2] > COS_EPS)
-        return jnp.where(ok, wi[..., 2] / jnp.pi, 0)
+        return cosine_pdf(wo, wi)
 
     def sample(self, wo, u):
         check_directions("Lambert.sample", wo=wo)

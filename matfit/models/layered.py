@@ -19,13 +19,6 @@ at ``wo'`` with the result refracted out; the pdf is the exact mixture, the base
 the Jacobian :math:`\mu_i/(\eta^2\mu_i')`. A smooth coat's delta lobe is sampled with its
 discrete probability as pdf.
 
-Parameters
-----------
-coat : SmoothDielectric or RoughDielectric (eta > 0; from outside).
-base : any reflective model without Dirac lobes (a smooth-coated stack cannot be a base), evaluated inside the layer (indices relative to the coat).
-thickness : d >= 0, in the units of 1/sigma_a, differentiable.
-sigma_a : (..., C) absorption coefficient >= 0, differentiable.
-
 References
 ----------
 - A. Weidlich, A. Wilkie, "Arbitrarily Layered Micro-Facet Surfaces", GRAPHITE 2007.
@@ -36,18 +29,33 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._math import COS_EPS, refract, safe_div
+from .._math import COS_EPS, refract, safe_div, up_like
 from ..errors import ParameterError
 from ._base import AbstractBSDF
 from ._coated import AbstractCoatedBSDF
 from ._coat import coat_reflection, coat_transmittance, is_smooth, make_coat
+from ._pairs import valid_reflection
 from ._params import as_channels, as_param, check_directions, check_range, check_u
 from .rough_dielectric import RoughDielectric
 from .smooth_dielectric import SmoothDielectric
 
+__all__ = ["Layered", "CoatedConductor"]
+
 
 class Layered(AbstractCoatedBSDF):
     """Any dielectric coat over any base model (stackable).
+
+    Parameters
+    ----------
+    coat : SmoothDielectric or RoughDielectric; differentiable (its array leaves)
+        The coat, seen from outside (its ``alpha`` and ``eta`` are the coat's parameters).
+    base : AbstractBSDF; no Dirac lobe; differentiable (its array leaves)
+        Any reflective model without Dirac lobes (a smooth-coated stack cannot be a base),
+        evaluated inside the layer (its indices relative to the coat).
+    thickness : array_like, scalar or (...), default 0.0; >= 0; differentiable
+        Layer thickness d, in the units of ``1 / sigma_a``.
+    sigma_a : array_like, scalar or (..., C), default 0.0; >= 0; differentiable
+        Absorption coefficient of the layer per colour channel.
 
     Examples
     --------
@@ -83,13 +91,13 @@ class Layered(AbstractCoatedBSDF):
 
     def _inner(self, w):
         """Direction inside the layer (pointing up) for an outside direction ``w``."""
-        n = jnp.zeros_like(w).at[..., 2].set(1)
+        n = up_like(w)
         t, ok = refract(w, n, self.coat.eta)
         return -t, ok & (w[..., 2] > COS_EPS)
 
     def _outer(self, w_in):
         """Outside direction for an inside direction ``w_in`` pointing up (None under TIR)."""
-        n = jnp.zeros_like(w_in).at[..., 2].set(1)
+        n = up_like(w_in)
         t, ok = refract(-w_in, n, self.coat.eta)
         return t, ok & (w_in[..., 2] > COS_EPS)
 
@@ -109,7 +117,7 @@ class Layered(AbstractCoatedBSDF):
         T = coat_transmittance(self.coat, wo[..., 2], table) * coat_transmittance(self.coat, wi[..., 2], table)
         inner = (T / self.coat.eta**2)[..., None] * self.base.eval(wo_b, wi_b) * self._absorption(wo_b, wi_b)
         f = coat_reflection(self.coat, wo, wi)[..., None] + jnp.where(ok[..., None], inner, 0)
-        both = (wo[..., 2] > COS_EPS) & (wi[..., 2] > COS_EPS)
+        both = valid_reflection(wo, wi)
         return jnp.where(both[..., None], f, 0)
 
     def _p_coat(self, wo, table):
@@ -126,7 +134,7 @@ class Layered(AbstractCoatedBSDF):
         jac = safe_div(jnp.abs(wi[..., 2]), self.coat.eta**2 * wi_b[..., 2])
         p_b = jnp.where(ok_o & ok_i, self.base.pdf(wo_b, wi_b) * jac, 0)
         p_c = 0.0 if is_smooth(self.coat) else self.coat.reflection_pdf(wo, wi)
-        both = (wo[..., 2] > COS_EPS) & (wi[..., 2] > COS_EPS)
+        both = valid_reflection(wo, wi)
         return jnp.where(both, pc * p_c + (1 - pc) * p_b, 0)
 
     def _sample_under(self, wo, u, pc):
@@ -145,7 +153,7 @@ class Layered(AbstractCoatedBSDF):
 
 
 def CoatedConductor(alpha_base, eta_base, k_base, alpha_coat=0.0, eta_coat=1.5, thickness=0.0, sigma_a=0.0,
-                    distribution="ggx", masking="separable"):
+                    distribution="ggx", masking="separable") -> Layered:
     r"""Car paint: a rough conductor under a smooth or rough clear coat (a :class:`Layered`).
 
     The coat's Fresnel is applied on the way in and on the way out, directions are refracted into
@@ -155,9 +163,29 @@ def CoatedConductor(alpha_base, eta_base, k_base, alpha_coat=0.0, eta_coat=1.5, 
 
     Parameters
     ----------
-    alpha_base : metal roughness > 0.  eta_base, k_base : (..., C) metal index.
-    alpha_coat : coat roughness (0: smooth).  eta_coat : coat index, > 0.
-    thickness, sigma_a : coat absorption, as in :class:`Layered`.
+    alpha_base : array_like, scalar or (...); >= 0; differentiable
+        Width of the metal's microfacet distribution.
+    eta_base : array_like, scalar or (..., C); > 0; differentiable
+        Real part of the metal's complex index relative to the outside (air), per channel.
+    k_base : array_like, scalar or (..., C); >= 0; differentiable
+        Imaginary part of the metal's index relative to the outside, per channel.
+    alpha_coat : array_like, scalar or (...), default 0.0; >= 0; differentiable when rough
+        Width of the coat's distribution; a concrete 0 gives a smooth coat (a Dirac lobe).
+    eta_coat : array_like, scalar or (...), default 1.5; > 0; differentiable
+        Index of the coat relative to the outside.
+    thickness : array_like, scalar or (...), default 0.0; >= 0; differentiable
+        Coat thickness, in the units of ``1 / sigma_a`` (as in :class:`Layered`).
+    sigma_a : array_like, scalar or (..., C), default 0.0; >= 0; differentiable
+        Absorption coefficient of the coat per colour channel.
+    distribution : {"ggx", "beckmann", "blinn_phong"}, default "ggx"; static, not differentiable
+        Microfacet distribution of the coat and the metal.
+    masking : {"separable", "height_correlated"}, default "separable"; static, not differentiable
+        Smith masking form of the coat and the metal.
+
+    Returns
+    -------
+    Layered
+        The coat over a :class:`RoughConductor` of index ``(eta_base + i k_base) / eta_coat``.
 
     Examples
     --------

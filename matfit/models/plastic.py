@@ -20,14 +20,6 @@ Both forms are reciprocal. Sampling picks the coat lobe with probability
 the pdf is the exact mixture. With a smooth coat the coat lobe is a delta: its sample has the
 discrete probability as pdf, and eval/pdf cover the diffuse part only.
 
-Parameters
-----------
-albedo : (..., C) diffuse albedo of the base, [0, 1], differentiable.
-alpha : coat roughness, >= 0; a concrete 0 gives a smooth coat. Differentiable when rough.
-eta : coat index relative to the outside, > 0 (typically 1.3-1.8), differentiable.
-distribution : coat microfacet distribution (rough coat only).
-internal_reflection : bool, see above.
-
 References
 ----------
 - A. Weidlich, A. Wilkie, "Arbitrarily Layered Micro-Facet Surfaces", GRAPHITE 2007.
@@ -43,13 +35,33 @@ import jax.numpy as jnp
 from .._math import cosine_hemisphere, safe_div
 from ._coated import AbstractCoatedBSDF
 from ._coat import coat_internal_reflectance, coat_reflection_pairs, coat_transmittance, is_smooth, make_coat
-from ._params import as_channels, check_directions, check_range, check_u
+from ._params import as_channels, channel_count, check_directions, check_range, check_u
 from ._pairs import SoAPairs
-from .lambert import Lambert
+from .lambert import cosine_pdf
+
+__all__ = ["Plastic"]
 
 
 class Plastic(AbstractCoatedBSDF):
-    """Diffuse base under a dielectric clear coat (plastic, varnished wood).
+    r"""Diffuse base under a dielectric clear coat (plastic, varnished wood).
+
+    Parameters
+    ----------
+    albedo : array_like, scalar or (..., C); [0, 1]; differentiable
+        Diffuse albedo :math:`\rho` of the base per colour channel (stored as the field
+        ``reflectance``).
+    alpha : array_like, scalar or (...), default 0.0; >= 0; differentiable when rough
+        Width of the coat's microfacet distribution; a concrete 0 gives a smooth coat (a
+        :class:`SmoothDielectric`, whose reflection is a Dirac lobe), anything else a
+        :class:`RoughDielectric`. Stored in ``coat``.
+    eta : array_like, scalar or (...), default 1.5; > 0; differentiable
+        Index of the coat relative to the outside, typically 1.3-1.8. Stored in ``coat``.
+    distribution : {"ggx", "beckmann", "blinn_phong"}, default "ggx"; static, not differentiable
+        The coat's microfacet distribution (rough coat only).
+    internal_reflection : bool, default True; static, not differentiable
+        Sum the light bouncing between base and coat (the module's second form of ``f_d``).
+    masking : {"separable", "height_correlated"}, default "separable"; static, not differentiable
+        Smith masking form of the rough coat.
 
     Examples
     --------
@@ -59,6 +71,8 @@ class Plastic(AbstractCoatedBSDF):
     >>> up = jnp.array([0.0, 0.0, 1.0])
     >>> red.eval(up, jnp.array([0.6, 0.0, 0.8])).shape
     (3,)
+    >>> round(float(Plastic(1.0).albedo(up)[0]), 3)  # a white base under a lossless smooth coat
+    1.0
     """
 
     reflectance: jnp.ndarray = eqx.field(converter=as_channels)
@@ -74,10 +88,11 @@ class Plastic(AbstractCoatedBSDF):
 
     @property
     def channels(self):
-        return self.reflectance.shape[-1]
+        return channel_count(self.reflectance)
 
     @property
     def eta(self):
+        """The coat's index relative to the outside."""
         return self.coat.eta
 
     pair_kernels = True
@@ -104,7 +119,7 @@ class Plastic(AbstractCoatedBSDF):
     def _eval_p(self, pairs, table):
         # the pairs' cosines are already mapped to the normal where a pair is invalid (double
         # where: finite gradients for directions a denormal above the horizon)
-        ok, cos_o, cos_i = pairs.iso[:3]
+        ok, cos_o, cos_i = pairs.valid, pairs.cos_o, pairs.cos_i
         f = self._diffuse(cos_o, cos_i, table)
         if not is_smooth(self.coat):
             f = f + coat_reflection_pairs(self.coat, pairs)[..., None]
@@ -121,7 +136,7 @@ class Plastic(AbstractCoatedBSDF):
 
     def _pdf_t(self, wo, wi, table):
         pc = self._p_coat(wo, table)
-        p_d = Lambert(self.reflectance).pdf(wo, wi)
+        p_d = cosine_pdf(wo, wi)
         p_c = 0.0 if is_smooth(self.coat) else self.coat.reflection_pdf(wo, wi)
         return pc * p_c + (1 - pc) * p_d
 

@@ -7,14 +7,6 @@ r"""Rough conductor: Cook-Torrance microfacet reflection with the exact conducto
 
 for :math:`\cos\theta_o, \cos\theta_i > 0` (``COS_EPS``), else 0.
 
-Parameters
-----------
-alpha : float or array, >= 0 (clamped to ``ALPHA_MIN`` = 1e-4 inside D), differentiable.
-alpha_y : optional, anisotropic width along y, differentiable.
-eta, k : (..., C) real and imaginary parts of the conductor's relative complex index,
-    eta > 0, k >= 0, differentiable.
-distribution : "ggx" | "beckmann" | "blinn_phong";  masking : "separable" | "height_correlated".
-
 Sampling: visible normals of ``wo`` (GGX, Beckmann) or D cos (all), reflected about the sampled
 normal; pdf = pdf_m(h) / (4 wo.h). Samples that leave below the horizon are invalid (pdf 0).
 
@@ -33,12 +25,33 @@ import jax.numpy as jnp
 from .._math import safe_div
 from ..fresnel import fresnel_conductor
 from ._microfacet import AbstractMicrofacetBSDF
-from ._pairs import SoAPairs, valid_reflection
-from ._params import as_channels, check_channels, check_directions, check_range, check_u
+from ._pairs import SoAPairs
+from ._params import as_channels, channel_count, check_complex_index, check_directions, check_u
+
+__all__ = ["RoughConductor"]
 
 
 class RoughConductor(AbstractMicrofacetBSDF):
     """Rough metal: D F G / (4 cos cos) with the complex-index Fresnel.
+
+    Parameters
+    ----------
+    alpha : array_like, scalar or (...); >= 0; differentiable
+        Width of the microfacet distribution along x (both axes when isotropic): the GGX or
+        Beckmann alpha, not a perceptual roughness; clamped to ``ALPHA_MIN`` = 1e-4 inside D.
+    eta : array_like, scalar or (..., C); > 0; differentiable
+        Real part of the conductor's complex index relative to the outside, per channel.
+    k : array_like, scalar or (..., C); >= 0; differentiable
+        Imaginary part (extinction coefficient), per channel.
+    distribution : {"ggx", "beckmann", "blinn_phong"}, default "ggx"; static, not differentiable
+        The microfacet distribution (:mod:`matfit.microfacet`); Blinn-Phong needs alpha <= 1.
+    masking : {"separable", "height_correlated"}, default "separable"; static, not differentiable
+        Smith masking form (:meth:`~matfit.microfacet.AbstractDistribution.G2`).
+    alpha_y : array_like or None, scalar or (...), default None; >= 0 or None; differentiable
+        Width along y for an anisotropic lobe; None ties it to ``alpha`` (isotropic).
+    sampling : {"visible", "dcos"}, default "visible"; static, not differentiable
+        Normals sampled from the normals visible from ``wo``, or from D cos; "visible" becomes
+        "dcos" for Blinn-Phong, which has no visible-normal sampler.
 
     Examples
     --------
@@ -55,22 +68,15 @@ class RoughConductor(AbstractMicrofacetBSDF):
 
     def __init__(self, alpha, eta, k, distribution="ggx", masking="separable", alpha_y=None, sampling="visible"):
         self._init_microfacet("RoughConductor", alpha, alpha_y, distribution, masking, sampling)
-        check_range("RoughConductor", "eta", eta, 0.0, lo_open=True)
-        check_range("RoughConductor", "k", k, 0.0)
-        check_channels("RoughConductor", eta=eta, k=k)
+        check_complex_index("RoughConductor", eta, k)
         self.eta = eta
         self.k = k
 
     @property
     def channels(self):
-        return jnp.broadcast_shapes(self.eta.shape, self.k.shape)[-1]
+        return channel_count(self.eta, self.k)
 
     pair_kernels = True
-
-    @staticmethod
-    def valid_pair(wo, wi):
-        """Where the lobe is defined: ``wo`` and ``wi`` above the surface (``cos > COS_EPS``)."""
-        return valid_reflection(wo, wi)
 
     def eval(self, wo, wi):
         check_directions("RoughConductor.eval", wo=wo, wi=wi)

@@ -27,12 +27,6 @@ no reflection, and transmission is a Dirac lobe straight through (``wi = -wo``, 
 as a discrete probability; eval and pdf 0). Just outside that band the transmission lobe is a
 very narrow but finite peak around ``-wo``.
 
-Parameters
-----------
-alpha, alpha_y : widths as in :class:`RoughConductor`, differentiable.
-eta : relative index inside/outside, > 0 (below 1 for a medium less dense than the outside),
-    scalar or batch-shaped (one value per pixel, not per channel), differentiable. Output C = 1.
-
 References
 ----------
 - B. Walter, S. Marschner, H. Li, K. Torrance, "Microfacet Models for Refraction through Rough
@@ -51,12 +45,34 @@ from ._base import dielectric_energy_factor
 from ._microfacet import AbstractMicrofacetBSDF
 from ._params import as_param, check_directions, check_range, check_u
 
+__all__ = ["RoughDielectric", "ETA_PASS"]
+
 #: |eta - 1| below which the interface is treated as index-matched (a straight pass-through).
 ETA_PASS = 1e-5
 
 
 class RoughDielectric(AbstractMicrofacetBSDF):
     """Frosted glass: rough reflection and refraction through a dielectric interface.
+
+    The model has one colour channel (``C = 1``).
+
+    Parameters
+    ----------
+    alpha : array_like, scalar or (...); >= 0; differentiable
+        Width of the microfacet distribution along x (both axes when isotropic): the GGX or
+        Beckmann alpha, not a perceptual roughness; clamped to ``ALPHA_MIN`` = 1e-4 inside D.
+    eta : array_like, scalar or (...); > 0; differentiable
+        Relative index inside / outside (below 1 for an inside less dense than the outside);
+        one value per batch element (a pixel), no channel axis.
+    distribution : {"ggx", "beckmann", "blinn_phong"}, default "ggx"; static, not differentiable
+        The microfacet distribution (:mod:`matfit.microfacet`); Blinn-Phong needs alpha <= 1.
+    masking : {"separable", "height_correlated"}, default "separable"; static, not differentiable
+        Smith masking form (:meth:`~matfit.microfacet.AbstractDistribution.G2`).
+    alpha_y : array_like or None, scalar or (...), default None; >= 0 or None; differentiable
+        Width along y for an anisotropic lobe; None ties it to ``alpha`` (isotropic).
+    sampling : {"visible", "dcos"}, default "visible"; static, not differentiable
+        Normals sampled from the normals visible from ``wo``, or from D cos; "visible" becomes
+        "dcos" for Blinn-Phong, which has no visible-normal sampler.
 
     Examples
     --------

@@ -5,10 +5,6 @@ lobe has no density); ``sample`` returns the mirror direction
 :math:`(-\omega_{o,x}, -\omega_{o,y}, \omega_{o,z})`, weight :math:`F(\cos\theta_o;\eta,k)` and
 pdf 1 (the discrete probability of the only lobe).
 
-Parameters
-----------
-eta, k : (..., C) relative complex index, eta > 0, k >= 0, differentiable.
-
 References
 ----------
 - M. Pharr, W. Jakob, G. Humphreys, *Physically Based Rendering*, 4th ed., Sec. 9.3.
@@ -19,14 +15,23 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._math import COS_EPS
+from .._math import COS_EPS, mirror
 from ..fresnel import fresnel_conductor
-from ._base import AbstractBSDF
-from ._params import as_channels, check_channels, check_directions, check_range, check_u
+from ._base import AbstractDeltaBSDF
+from ._params import as_channels, channel_count, check_complex_index, check_directions, check_u
+
+__all__ = ["SmoothConductor"]
 
 
-class SmoothConductor(AbstractBSDF):
+class SmoothConductor(AbstractDeltaBSDF):
     """Perfect mirror with conductor Fresnel.
+
+    Parameters
+    ----------
+    eta : array_like, scalar or (..., C); > 0; differentiable
+        Real part of the conductor's complex index relative to the outside, per channel.
+    k : array_like, scalar or (..., C); >= 0; differentiable
+        Imaginary part (extinction coefficient), per channel.
 
     Examples
     --------
@@ -37,29 +42,17 @@ class SmoothConductor(AbstractBSDF):
     [-0.6, 0.0, 0.8]
     """
 
-    is_delta = True
     eta: jnp.ndarray = eqx.field(converter=as_channels)
     k: jnp.ndarray = eqx.field(converter=as_channels)
 
     def __init__(self, eta, k):
-        check_range("SmoothConductor", "eta", eta, 0.0, lo_open=True)
-        check_range("SmoothConductor", "k", k, 0.0)
-        check_channels("SmoothConductor", eta=eta, k=k)
+        check_complex_index("SmoothConductor", eta, k)
         self.eta = eta
         self.k = k
 
     @property
     def channels(self):
-        return jnp.broadcast_shapes(self.eta.shape, self.k.shape)[-1]
-
-    def eval(self, wo, wi):
-        check_directions("SmoothConductor.eval", wo=wo, wi=wi)
-        shape = jnp.broadcast_shapes(wo.shape, wi.shape)[:-1] + (self.channels,)
-        return jnp.zeros(shape, jnp.result_type(wo, self.eta))
-
-    def pdf(self, wo, wi):
-        check_directions("SmoothConductor.pdf", wo=wo, wi=wi)
-        return jnp.zeros(jnp.broadcast_shapes(wo.shape, wi.shape)[:-1], jnp.result_type(wo))
+        return channel_count(self.eta, self.k)
 
     def delta_albedo(self, wo):
         ok = wo[..., 2] > COS_EPS
@@ -70,6 +63,6 @@ class SmoothConductor(AbstractBSDF):
         check_u("SmoothConductor.sample", u, 3)
         shape = jnp.broadcast_shapes(wo.shape, u.shape[:-1] + (3,))
         wo = jnp.broadcast_to(wo, shape)
-        wi = wo * jnp.array([-1, -1, 1], wo.dtype)
+        wi = mirror(wo)
         ok = wo[..., 2] > COS_EPS
         return wi, self.delta_albedo(wo), jnp.where(ok, 1.0, 0.0).astype(wo.dtype)

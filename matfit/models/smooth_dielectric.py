@@ -6,10 +6,6 @@ by Snell's law with probability 1 - F (weight :math:`1/\eta_p^2`, the radiance s
 total internal reflection F = 1. The returned pdf is the discrete lobe probability; ``eval`` and
 ``pdf`` are zero everywhere.
 
-Parameters
-----------
-eta : relative index inside/outside, > 0, differentiable. Output C = 1.
-
 References
 ----------
 - M. Pharr, W. Jakob, G. Humphreys, *Physically Based Rendering*, 4th ed., Sec. 9.5.
@@ -19,14 +15,21 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from .._math import COS_EPS, refract, sq
+from .._math import COS_EPS, mirror, refract, sq, up_like
 from ..fresnel import fresnel_dielectric
-from ._base import AbstractBSDF, dielectric_energy_factor
+from ._base import AbstractDeltaBSDF, dielectric_energy_factor
 from ._params import as_param, check_directions, check_range, check_u
 
+__all__ = ["SmoothDielectric"]
 
-class SmoothDielectric(AbstractBSDF):
-    """Clear glass interface.
+
+class SmoothDielectric(AbstractDeltaBSDF):
+    """Clear glass interface (one colour channel, ``C = 1``).
+
+    Parameters
+    ----------
+    eta : array_like, scalar or (...); > 0; differentiable
+        Relative index inside / outside; one value per batch element, no channel axis.
 
     Examples
     --------
@@ -37,7 +40,6 @@ class SmoothDielectric(AbstractBSDF):
     ([0.0, 0.0, -1.0], 0.96)
     """
 
-    is_delta = True
     eta: jnp.ndarray
 
     @property
@@ -52,15 +54,6 @@ class SmoothDielectric(AbstractBSDF):
     def channels(self):
         return 1
 
-    def eval(self, wo, wi):
-        check_directions("SmoothDielectric.eval", wo=wo, wi=wi)
-        shape = jnp.broadcast_shapes(wo.shape, wi.shape)[:-1] + (1,)
-        return jnp.zeros(shape, jnp.result_type(wo, self.eta))
-
-    def pdf(self, wo, wi):
-        check_directions("SmoothDielectric.pdf", wo=wo, wi=wi)
-        return jnp.zeros(jnp.broadcast_shapes(wo.shape, wi.shape)[:-1], jnp.result_type(wo))
-
     def energy_factor(self, wo, wi):
         return dielectric_energy_factor(wo, wi, self.eta)
 
@@ -74,8 +67,8 @@ class SmoothDielectric(AbstractBSDF):
         shape = jnp.broadcast_shapes(wo.shape, u.shape[:-1] + (3,))
         wo = jnp.broadcast_to(wo, shape)
         F = fresnel_dielectric(wo[..., 2], self.eta)
-        n = jnp.zeros_like(wo).at[..., 2].set(1)
-        wr = wo * jnp.array([-1, -1, 1], wo.dtype)
+        n = up_like(wo)
+        wr = mirror(wo)
         wt, _ = refract(wo, n, self.eta)
         choose_r = u[..., 0] < F
         etap = jnp.where(wo[..., 2] > 0, self.eta, 1 / self.eta)

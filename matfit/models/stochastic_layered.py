@@ -27,12 +27,6 @@ geometrically). Its standard error falls as :math:`1/\sqrt{n}` with ``n_samples`
 There is no closed-form pdf: ``pdf`` and ``sample`` raise; :meth:`albedo` uses the walk itself
 (energy of the paths that leave the layer).
 
-Parameters
-----------
-coat : SmoothDielectric or RoughDielectric.   base : a matfit model without Dirac lobes.
-thickness : d >= 0.   sigma_a : (..., C) >= 0.
-n_samples : walks per evaluation (static).   max_depth : base bounces per walk (static).
-
 References
 ----------
 - Y. Guo, M. Hašan, S. Zhao, "Position-Free Monte Carlo Simulation for Arbitrary Layered BSDFs",
@@ -45,18 +39,36 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from .._math import COS_EPS, refract
+from .._math import COS_EPS, refract, up_like
 from ..errors import ParameterError
 from ..fresnel import fresnel_dielectric
 from ._base import AbstractBSDF
 from ._coat import coat_reflection, is_smooth
+from ._pairs import valid_reflection
 from ._params import as_channels, as_param, check_directions, check_range
 from .rough_dielectric import RoughDielectric
 from .smooth_dielectric import SmoothDielectric
 
+__all__ = ["StochasticLayered"]
+
 
 class StochasticLayered(AbstractBSDF):
     """Monte Carlo reference for a coat over a base (unbiased ``eval`` estimate).
+
+    Parameters
+    ----------
+    coat : SmoothDielectric or RoughDielectric; differentiable (its array leaves)
+        The coat, seen from outside.
+    base : AbstractBSDF; no Dirac lobe; differentiable (its array leaves)
+        The model under the coat, evaluated and sampled inside the layer.
+    thickness : array_like, scalar or (...), default 0.0; >= 0; differentiable
+        Layer thickness d, in the units of ``1 / sigma_a``.
+    sigma_a : array_like, scalar or (..., C), default 0.0; >= 0; differentiable
+        Absorption coefficient of the layer per colour channel.
+    n_samples : int, default 1024; >= 1; static, not differentiable
+        Random walks per evaluation; the standard error falls as ``1 / sqrt(n_samples)``.
+    max_depth : int, default 16; >= 1; static, not differentiable
+        Base bounces per walk (the truncation of the series).
 
     Examples
     --------
@@ -123,7 +135,7 @@ class StochasticLayered(AbstractBSDF):
             mu_i = jnp.abs(wi[..., 2])
             total = total + (coat_reflection(coat, wo, wi) * mu_i)[..., None]
             if smooth:
-                n = jnp.zeros_like(wi).at[..., 2].set(1)
+                n = up_like(wi)
                 t_l, ok_l = refract(wi, n, coat.eta)
                 light_in = -t_l
                 conn = (1 - fresnel_dielectric(wi[..., 2], coat.eta)) * mu_i
@@ -177,18 +189,61 @@ class StochasticLayered(AbstractBSDF):
         return c_a + jnp.where(ok_l[..., None], c_b, 0)
 
     def eval(self, wo, wi, key=None):
-        """Unbiased estimate of f(wo, wi) from ``n_samples`` walks (``key`` default PRNGKey(0))."""
+        r"""Unbiased estimate of :math:`f(\omega_o, \omega_i)` from ``n_samples`` walks.
+
+        Parameters
+        ----------
+        wo, wi : array_like, shape (..., 3)
+            Unit directions (a reflection pair above the surface; 0 otherwise).
+        key : jax.random.PRNGKey, optional
+            Random key of the walks (default ``PRNGKey(0)``: a deterministic estimate).
+
+        Returns
+        -------
+        jax.Array, shape (..., C)
+
+        Examples
+        --------
+        >>> import jax.numpy as jnp
+        >>> from matfit.models import Lambert, SmoothDielectric, StochasticLayered
+        >>> ref = StochasticLayered(SmoothDielectric(1.0 + 1e-6), Lambert(0.5), n_samples=64, max_depth=2)
+        >>> up = jnp.array([0.0, 0.0, 1.0])  # an index-matched coat: the base alone
+        >>> round(float(ref.eval(up, up)[0] * jnp.pi), 3)
+        0.5
+        """
         check_directions("StochasticLayered.eval", wo=wo, wi=wi)
         key = jax.random.PRNGKey(0) if key is None else key
         wo = jnp.asarray(wo)
         wi = jnp.asarray(wi)
         fcos = jnp.mean(self._walk(wo, wi, key, energy=False), axis=0)
-        ok = (wo[..., 2] > COS_EPS) & (wi[..., 2] > COS_EPS)
+        ok = valid_reflection(wo, wi)
         mu_i = jnp.where(ok, wi[..., 2], 1)
         return jnp.where(ok[..., None], fcos / mu_i[..., None], 0)
 
     def eval_with_error(self, wo, wi, key=None):
-        """``(estimate, standard error)`` of f(wo, wi)."""
+        """The estimate of :meth:`eval` with its standard error.
+
+        Parameters
+        ----------
+        wo, wi : array_like, shape (..., 3)
+            Unit directions.
+        key : jax.random.PRNGKey, optional
+            Random key of the walks (default ``PRNGKey(0)``).
+
+        Returns
+        -------
+        estimate, stderr : jax.Array, shape (..., C)
+            The mean of the walks' contributions and its standard error.
+
+        Examples
+        --------
+        >>> import jax.numpy as jnp
+        >>> from matfit.models import Lambert, SmoothDielectric, StochasticLayered
+        >>> ref = StochasticLayered(SmoothDielectric(1.5), Lambert(0.5), n_samples=256, max_depth=4)
+        >>> f, se = ref.eval_with_error(jnp.array([0.0, 0.0, 1.0]), jnp.array([0.6, 0.0, 0.8]))
+        >>> bool(jnp.all(se < 0.1 * f))
+        True
+        """
         key = jax.random.PRNGKey(0) if key is None else key
         wo = jnp.asarray(wo)
         wi = jnp.asarray(wi)
@@ -197,14 +252,97 @@ class StochasticLayered(AbstractBSDF):
         return jnp.mean(c, axis=0) / mu_i, jnp.std(c, axis=0) / jnp.sqrt(self.n_samples) / mu_i
 
     def albedo(self, wo, method="mc", n=None, key=None):
-        """Directional albedo by the walk: the energy of the paths that leave the layer."""
+        """Directional albedo by the walk: the energy of the paths that leave the layer.
+
+        Parameters
+        ----------
+        wo : array_like, shape (..., 3)
+            Outgoing directions.
+        method : str, optional
+            Not read: the walk is the only method (accepted for the interface of
+            :meth:`AbstractBSDF.albedo <matfit.models.AbstractBSDF.albedo>`).
+        n : int, optional
+            Not read: the walk count is ``n_samples``.
+        key : jax.random.PRNGKey, optional
+            Random key of the walks (default ``PRNGKey(0)``).
+
+        Returns
+        -------
+        jax.Array, shape (..., C)
+
+        Examples
+        --------
+        >>> import jax.numpy as jnp
+        >>> from matfit.models import Lambert, SmoothDielectric, StochasticLayered
+        >>> ref = StochasticLayered(SmoothDielectric(1.5), Lambert(0.0), n_samples=4096, max_depth=1)
+        >>> e = ref.albedo(jnp.array([0.0, 0.0, 1.0]))  # a black base: the coat's F(0) = 0.04
+        >>> bool(abs(float(e[0]) - 0.04) < 0.015)
+        True
+        """
         wo = jnp.asarray(wo)
         key = jax.random.PRNGKey(0) if key is None else key
         e = jnp.mean(self._walk(wo, None, key, energy=True), axis=0)
         return jnp.where((wo[..., 2] > COS_EPS)[..., None], e, 0)
 
     def pdf(self, wo, wi):
+        """Not available: the walk has no closed-form density (use :class:`Layered` or
+        :class:`Plastic` for sampling and multiple importance sampling).
+
+        Parameters
+        ----------
+        wo, wi : array_like, shape (..., 3)
+            Unit directions.
+
+        Returns
+        -------
+        NoReturn
+            It always raises.
+
+        Raises
+        ------
+        NotImplementedError
+            Always.
+
+        Examples
+        --------
+        >>> import jax.numpy as jnp
+        >>> from matfit.models import Lambert, SmoothDielectric, StochasticLayered
+        >>> up = jnp.array([0.0, 0.0, 1.0])
+        >>> StochasticLayered(SmoothDielectric(1.5), Lambert(0.5)).pdf(up, up)
+        Traceback (most recent call last):
+        ...
+        NotImplementedError: StochasticLayered has no closed-form pdf; use Layered or Plastic for sampling and MIS
+        """
         raise NotImplementedError("StochasticLayered has no closed-form pdf; use Layered or Plastic for sampling and MIS")
 
     def sample(self, wo, u):
+        """Not available: the model is an evaluation reference (sample with :class:`Layered` or
+        :class:`Plastic`).
+
+        Parameters
+        ----------
+        wo : array_like, shape (..., 3)
+            Unit directions.
+        u : array_like, shape (..., 3)
+            Uniform numbers.
+
+        Returns
+        -------
+        NoReturn
+            It always raises.
+
+        Raises
+        ------
+        NotImplementedError
+            Always.
+
+        Examples
+        --------
+        >>> import jax.numpy as jnp
+        >>> from matfit.models import Lambert, SmoothDielectric, StochasticLayered
+        >>> StochasticLayered(SmoothDielectric(1.5), Lambert(0.5)).sample(jnp.array([0.0, 0.0, 1.0]), jnp.zeros(3))
+        Traceback (most recent call last):
+        ...
+        NotImplementedError: StochasticLayered is an evaluation reference; sample with Layered or Plastic
+        """
         raise NotImplementedError("StochasticLayered is an evaluation reference; sample with Layered or Plastic")
