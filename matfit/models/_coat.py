@@ -140,7 +140,7 @@ def coat_reflection_pairs(coat, pairs):
     True
     """
     F = fresnel_dielectric(pairs.cos_d, coat.eta)
-    return jnp.where(coat._passthrough(), 0, coat.reflection_lobe(pairs) * F)
+    return jnp.where(coat.index_matched(), 0, coat.reflection_lobe(pairs) * F)
 
 
 def _gl01(n, dtype):
@@ -200,7 +200,7 @@ def coat_transmittance_table(coat, order=COAT_ORDER, nodes=COAT_NODES, dtype=Non
     e = jnp.where(ok, (1 - fresnel_dielectric(c, coat.eta)) * ratio, 0)
     T = jnp.sum(e * wts, axis=-1)
     # an index-matched coat (|eta - 1| < ETA_PASS) lets everything straight through, as its sampler
-    T = jnp.where(coat._passthrough(), 1.0, T)
+    T = jnp.where(coat.index_matched(), 1.0, T)
     return mu, T
 
 

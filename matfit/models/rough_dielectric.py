@@ -99,7 +99,20 @@ class RoughDielectric(AbstractMicrofacetBSDF):
     def channels(self):
         return 1
 
-    def _passthrough(self):
+    def index_matched(self):
+        """True where ``|eta - 1| < ETA_PASS``: the interface is index-matched and light passes
+        straight through (no reflection, a Dirac transmission), the eta -> 1 limit.
+
+        Returns
+        -------
+        jax.Array of bool
+
+        Examples
+        --------
+        >>> from matfit.models import RoughDielectric
+        >>> bool(RoughDielectric(0.2, 1.0).index_matched()), bool(RoughDielectric(0.2, 1.5).index_matched())
+        (True, False)
+        """
         return jnp.abs(self.eta - 1) < ETA_PASS
 
     def _geometry(self, wo, wi):
@@ -112,7 +125,7 @@ class RoughDielectric(AbstractMicrofacetBSDF):
         wim = dot(wi, m)
         wom = dot(wo, m)
         ok = (jnp.abs(co) > COS_EPS) & (jnp.abs(ci) > COS_EPS) & (wim * ci > 0) & (wom * co > 0)
-        ok = ok & ~self._passthrough()
+        ok = ok & ~self.index_matched()
         return m, wim, wom, co, ci, refl, etap, ok
 
     def energy_factor(self, wo, wi):
@@ -159,7 +172,7 @@ class RoughDielectric(AbstractMicrofacetBSDF):
         weight = safe_div(self.eval(wo, wi) * jnp.abs(wi[..., 2])[..., None], pdf[..., None])
         weight = jnp.where(ok[..., None], weight, 0)
         # Index-matched: straight through, as a discrete lobe.
-        through = self._passthrough() & (jnp.abs(wo[..., 2]) > COS_EPS)
+        through = self.index_matched() & (jnp.abs(wo[..., 2]) > COS_EPS)
         wi = jnp.where(through[..., None], -wo, wi)
         weight = jnp.where(through[..., None], 1.0, weight)
         pdf = jnp.where(through, 1.0, pdf)
