@@ -27,8 +27,7 @@ test: $(STAMP)
 # The quick tier while working (a few minutes): the tests marked `check` (tests/conftest.py
 # CHECK_TIER, one or a few per test file) and the library's doctests.
 check: $(STAMP)
-	$(PY) -m pytest -q -n 2 --dist loadfile -m check tests
-	$(PY) -m pytest -q -n 2 matfit --doctest-modules
+	$(PY) -m pytest -q -n 2 --dist loadfile -m check tests matfit --doctest-modules
 
 bench: $(STAMP)
 	$(PY) benchmarks/run_all.py

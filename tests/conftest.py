@@ -68,9 +68,12 @@ def pytest_configure(config):
 
 
 def pytest_collection_modifyitems(config, items):
+    from _pytest.doctest import DoctestItem
+
     for item in items:
         name = getattr(item, "originalname", None) or item.name.split("[")[0]
-        if name in CHECK_TIER.get(Path(str(item.fspath)).name, ()):
+        # the library's doctests belong to the quick tier as well (one pytest run for make check)
+        if isinstance(item, DoctestItem) or name in CHECK_TIER.get(Path(str(item.fspath)).name, ()):
             item.add_marker(pytest.mark.check)
 
 
