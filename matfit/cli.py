@@ -114,15 +114,18 @@ def _load_table(path, subsample=None, seed=0, with_full=False):
 
 
 def _cmd_fit(args):
-    from data_synth import truth_from_table
-
     from .pipeline import run_pipeline
 
     table, full = _load_table(args.table, args.subsample, args.seed, with_full=True)
+    truth = None
+    if (table.provenance or {}).get("ground_truth"):  # a synthetic table: data_synth reads its truth back
+        from data_synth import truth_from_table
+
+        truth = truth_from_table(table, args.model)
     run_pipeline(table, args.model, method=None if args.method == "mcmc" else args.method, loss=args.loss,
                  fixed=_parse_fixed(args.fixed), starts=args.starts, max_steps=args.max_steps, seed=args.seed,
                  posterior_steps=args.mcmc_steps if args.method == "mcmc" else 0,
-                 truth=truth_from_table(table, args.model), report=args.report, report_table=full,
+                 truth=truth, report=args.report, report_table=full,
                  title=f"{args.model} fit of {Path(args.table).name}", save_model=args.save_model, source=args.table,
                  export=[tuple(args.export)] if args.export else ())
     return 0

@@ -41,7 +41,7 @@ import jax
 import jax.numpy as jnp
 
 from ..errors import ParameterError
-from .lm import BoxedDampedStep, GroupedDifferences, LevenbergMarquardtFD, LMResult, NielsenDamping, StepTermination
+from .lm import LMResult, lm_fd
 
 __all__ = ["Method", "METHODS", "DEFAULT_METHOD", "get_method", "AbstractSolver", "Solution", "LMFDSolver",
            "OptimistixLeastSquares", "OptimistixBFGS", "JaxoptLBFGS", "JaxoptLM"]
@@ -197,9 +197,8 @@ class LMFDSolver(AbstractSolver):
     normal_equations: ClassVar[bool] = True
 
     def solve(self, fn, z0, args, max_steps, groups=None, wide=False, extrapolate=False) -> Solution:
-        solver = LevenbergMarquardtFD(GroupedDifferences(), BoxedDampedStep(), NielsenDamping(),
-                                      StepTermination(self.rtol, self.atol), extrapolate)
-        res = solver.minimise(fn, z0, args, *groups, max_steps=max_steps, wide=wide)
+        res = lm_fd(fn, z0, args, *groups, max_steps=max_steps, rtol=self.rtol, atol=self.atol, wide=wide,
+                    extrapolate=extrapolate)
         return Solution(res.z, res.steps, res.converged, res)
 
 
