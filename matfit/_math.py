@@ -91,6 +91,38 @@ def safe_sqrt(x):
     return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, 1)), 0)
 
 
+def per_pair(x):
+    """``x`` itself, ended by a division so that XLA computes it once per pair, in a loop of its own.
+
+    A model's value is per-pair work (cosines, D, G, a scalar Fresnel) broadcast against its
+    colour channels. XLA's CPU fusion copies cheap operations into the per-channel ``(..., C)``
+    loop but not expensive ones (divisions, square roots): the expensive operands of the last
+    cheap operation then become separate loops, each written out and read back (a smooth coat's
+    two transmittances became eight loops). A quantity that ends in a division is computed whole
+    in one loop, written once, and read by the per-channel loop. The divisor is 1 wherever
+    ``x == x`` (0 where ``x`` is NaN, which stays NaN), so value and gradient are those of ``x``.
+
+    Parameters
+    ----------
+    x : array_like
+        A per-pair quantity (no channel axis).
+
+    Returns
+    -------
+    jax.Array
+        Equal to ``x`` (bit for bit; gradient 1).
+
+    Examples
+    --------
+    >>> import jax, jax.numpy as jnp
+    >>> from matfit._math import per_pair
+    >>> float(per_pair(jnp.float32(0.25))), float(jax.grad(lambda t: per_pair(3 * t))(1.0))
+    (0.25, 3.0)
+    """
+    x = jnp.asarray(x)
+    return x / jnp.where(x == x, 1, 0).astype(x.dtype)
+
+
 def safe_div(num, den, fill=0.0):
     """``num / den`` where ``den != 0``, else ``fill``; gradients stay finite.
 

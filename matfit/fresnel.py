@@ -57,11 +57,15 @@ def fresnel_dielectric(cos_theta_i, eta):
     c = jnp.clip(jnp.asarray(cos_theta_i), -1, 1)
     eta = jnp.asarray(eta)
     inside = c < 0
-    eta = jnp.where(inside, 1 / eta, eta)
+    inv = 1 / eta
+    # 1/eta^2 from the (usually scalar) index, so that no division is left per direction before
+    # the reflectances' own: the whole formula is then one loop (see matfit._math.per_pair)
+    inv_e2 = jnp.where(inside, eta * eta, inv * inv)
+    eta = jnp.where(inside, inv, eta)
     c = jnp.abs(c)
     # cos^2 theta_t = 1 - (1 - c^2)/eta^2, written as (eta^2 - 1 + c^2)/eta^2 so that it keeps
     # its digits near grazing incidence and at eta ~ 1 (float32: 1 - c^2 rounds to 1 at c = 1e-4).
-    cos2_t = (eta * eta - 1 + c * c) / (eta * eta)
+    cos2_t = (eta * eta - 1 + c * c) * inv_e2
     tir = cos2_t <= 0
     grazing = c <= 0
     cos_t = safe_sqrt(cos2_t)

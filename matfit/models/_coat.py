@@ -235,12 +235,14 @@ def coat_transmittance(coat, mu, table=None):
     grid, T = coat_transmittance_table(coat) if table is None else table
     # The nodes are mu_j = (j / (n - 1))^2, so the interval of mu is found in closed form
     # (j = floor(sqrt(mu) (n - 1))) instead of by jnp.interp's search: the same linear
-    # interpolation without a search per value.
+    # interpolation without a search per value. Each interval's line T = a + b mu is tabulated
+    # first (n values), so that a value reads two coefficients and divides nothing; two 1-D
+    # takes (XLA's CPU gather of a (n, 2) row is several times slower than two 1-D gathers).
     n = grid.shape[0]
+    b = (T[1:] - T[:-1]) / (grid[1:] - grid[:-1])
+    a = T[:-1] - b * grid[:-1]
     j = jnp.clip(jnp.floor(jnp.sqrt(mu) * (n - 1)).astype(jnp.int32), 0, n - 2)
-    g0, g1 = grid[j], grid[j + 1]
-    t = (mu - g0) / (g1 - g0)
-    return T[j] + t * (T[j + 1] - T[j])
+    return jnp.take(a, j, mode="clip") + jnp.take(b, j, mode="clip") * mu
 
 
 def coat_internal_reflectance(coat, table=None, order=64):

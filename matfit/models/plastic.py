@@ -32,7 +32,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._math import cosine_hemisphere, safe_div
+from .._math import cosine_hemisphere, per_pair, safe_div
 from ._coated import AbstractCoatedBSDF
 from ._coat import coat_internal_reflectance, coat_reflection_pairs, coat_transmittance, is_smooth, make_coat
 from ._params import as_channels, channel_count, check_directions, check_range, check_u
@@ -97,14 +97,13 @@ class Plastic(AbstractCoatedBSDF):
 
     pair_kernels = True
 
-    def _diffuse(self, cos_o, cos_i, table):
-        To = coat_transmittance(self.coat, cos_o, table)
-        Ti = coat_transmittance(self.coat, cos_i, table)
-        scale = (To * Ti)[..., None] * self.reflectance / jnp.pi
+    def _channel_scale(self, table):
+        # the per-channel factor of the diffuse lobe (no pair axis)
+        k = self.reflectance / jnp.pi
         if self.internal_reflection:
             r_int = coat_internal_reflectance(self.coat, table)
-            scale = scale / (self.coat.eta**2 * (1 - self.reflectance * r_int))
-        return scale
+            k = k / (self.coat.eta**2 * (1 - self.reflectance * r_int))
+        return k
 
     def eval(self, wo, wi):
         check_directions("Plastic.eval", wo=wo, wi=wi)
@@ -119,11 +118,15 @@ class Plastic(AbstractCoatedBSDF):
     def _eval_p(self, pairs, table):
         # the pairs' cosines are already mapped to the normal where a pair is invalid (double
         # where: finite gradients for directions a denormal above the horizon)
+        # per-pair scalars (0 on invalid pairs), each computed whole in one loop (per_pair), then
+        # one per-channel loop: f = To Ti k + R
         ok, cos_o, cos_i = pairs.valid, pairs.cos_o, pairs.cos_i
-        f = self._diffuse(cos_o, cos_i, table)
+        To = coat_transmittance(self.coat, cos_o, table)
+        Ti = coat_transmittance(self.coat, cos_i, table)
+        f = per_pair(jnp.where(ok, To * Ti, 0))[..., None] * self._channel_scale(table)
         if not is_smooth(self.coat):
-            f = f + coat_reflection_pairs(self.coat, pairs)[..., None]
-        return jnp.where(ok[..., None], f, 0)
+            f = f + per_pair(jnp.where(ok, coat_reflection_pairs(self.coat, pairs), 0))[..., None]
+        return f
 
     def _p_coat(self, wo, table):
         R = 1 - coat_transmittance(self.coat, wo[..., 2], table)

@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from .._math import COS_EPS, dot, flip_up, normalize, reflect, refract, safe_div, sq
+from .._math import COS_EPS, Vec3, dot, normalize, per_pair, reflect, refract, safe_div, sq
 from ..fresnel import fresnel_dielectric
 from ._base import dielectric_energy_factor
 from ._microfacet import AbstractMicrofacetBSDF
@@ -116,12 +116,15 @@ class RoughDielectric(AbstractMicrofacetBSDF):
         return jnp.abs(self.eta - 1) < ETA_PASS
 
     def _geometry(self, wo, wi):
-        """Generalized half vector, lobe, relative index and validity for a pair."""
+        """Generalized half vector (a :class:`~matfit._math.Vec3`), lobe, relative index and validity for a pair."""
         co = wo[..., 2]
         ci = wi[..., 2]
         refl = co * ci > 0
         etap = jnp.where(refl, 1.0, jnp.where(co > 0, self.eta, 1 / self.eta))
-        m = flip_up(normalize(wi * etap[..., None] + wo))
+        # m = wi etap + wo, normalized and turned up, component by component (a Vec3)
+        g = normalize(Vec3(*(wi[..., j] * etap + wo[..., j] for j in range(3))))
+        up = jnp.where(g.z < 0, -1.0, 1.0).astype(g.z.dtype)
+        m = Vec3(g.x * up, g.y * up, g.z * up)
         wim = dot(wi, m)
         wom = dot(wo, m)
         ok = (jnp.abs(co) > COS_EPS) & (jnp.abs(ci) > COS_EPS) & (wim * ci > 0) & (wom * co > 0)
@@ -133,6 +136,9 @@ class RoughDielectric(AbstractMicrofacetBSDF):
 
     def eval(self, wo, wi):
         check_directions("RoughDielectric.eval", wo=wo, wi=wi)
+        # components as separate arrays (Vec3): XLA keeps the half vector per component instead
+        # of an interleaved (..., 3) array written out and read back
+        wo, wi = Vec3.from_array(jnp.asarray(wo)), Vec3.from_array(jnp.asarray(wi))
         m, wim, wom, co, ci, refl, etap, ok = self._geometry(wo, wi)
         d = self.dist()
         DG = d.D(m) * d.G2(wo, wi, m, self.masking)
@@ -143,12 +149,12 @@ class RoughDielectric(AbstractMicrofacetBSDF):
         denom = sq(wim + wom / etap) * ci_s * co_s
         f_t = DG * (1 - F) * jnp.abs(safe_div(wim * wom, denom)) / sq(etap)
         f = jnp.where(refl, f_r, f_t)
-        return jnp.where(ok, f, 0)[..., None]
+        return per_pair(jnp.where(ok, f, 0))[..., None]
 
     def pdf(self, wo, wi):
         check_directions("RoughDielectric.pdf", wo=wo, wi=wi)
         m, wim, wom, co, ci, refl, etap, ok = self._geometry(wo, wi)
-        pdf_m = self._pdf_m(self.dist(), wo, m)
+        pdf_m = self._pdf_m(self.dist(), wo, m.to_array())
         R = fresnel_dielectric(wom, self.eta)
         p_r = safe_div(pdf_m, 4 * jnp.abs(wom)) * R
         p_t = pdf_m * jnp.abs(safe_div(wim, sq(wim + wom / etap))) * (1 - R)
@@ -167,7 +173,9 @@ class RoughDielectric(AbstractMicrofacetBSDF):
         # A D cos sample may face away from wo: such a microfacet cannot be hit (and the pair's
         # generalized half vector would differ from m), so the sample is invalid.
         side_ok = side_ok & (dot(wo, m) * wo[..., 2] > 0)
-        pdf = jnp.where(side_ok, self.pdf(wo, wi), 0)
+        # computed once (per_pair): the validity test and the weight's divisor read the same value
+        # (two loops recomputing a pdf near underflow could disagree on whether it is 0)
+        pdf = per_pair(jnp.where(side_ok, self.pdf(wo, wi), 0))
         ok = pdf > 0
         weight = safe_div(self.eval(wo, wi) * jnp.abs(wi[..., 2])[..., None], pdf[..., None])
         weight = jnp.where(ok[..., None], weight, 0)
