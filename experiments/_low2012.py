@@ -42,67 +42,47 @@ Both are means of squared log differences (not their square roots).
 """
 from __future__ import annotations
 
-import re
+import sys
 from pathlib import Path
 
 import numpy as np
 
+# numpy_ref (the repository's numpy references) holds the one implementation of the model
+_ROOT = str(Path(__file__).resolve().parents[1])
+if _ROOT not in sys.path:
+    sys.path.insert(0, _ROOT)
+
+from numpy_ref.published import LowCookTorrance, fresnel_cook, read_fit_file  # noqa: E402
+
 __all__ = ["parse_low_fits", "low_cooktorrance", "e2_cells", "direction_grid",
            "e2_weighted", "best_scale"]
 
-_FIT_RE = re.compile(
-    r"^(?P<name>[\w\-]+)\s*=\s*Aggregate\(\s*Lambertian\(\s*albedo\s*=\s*\[(?P<kd>[^\]]*)\]\s*\)\s*,\s*"
-    r"LowCookTorrance\(\s*albedo\s*=\s*\[(?P<ks>[^\]]*)\]\s*,\s*roughness\s*=\s*(?P<m>[-+\deE.]+)\s*,\s*"
-    r"eta\s*=\s*(?P<eta>[-+\deE.]+)\s*\)\s*\)\s*$")
+#: kept for tests/test_low2012.py: the Cook-Torrance Fresnel of numpy_ref.published
+_cook_fresnel = fresnel_cook
 
 
 def parse_low_fits(path):
-    """``{material: {"kd": [3], "ks": [3], "m": float, "eta": float}}`` from ``low_cooktorrance_E2.fit``."""
+    """``{material: {"kd": [3], "ks": [3], "m": float, "eta": float}}`` from ``low_cooktorrance_E2.fit``
+    (parsed by numpy_ref.published.read_fit_file; a malformed line raises its PublishedFitError, a
+    ValueError naming the file, line and field)."""
     out = {}
-    for ln, line in enumerate(Path(path).read_text().splitlines(), 1):
-        line = line.strip()
-        if not line or line.startswith("#"):
-            continue
-        mt = _FIT_RE.match(line)
-        if mt is None:
-            raise ValueError(f"{path}, line {ln}: not an Aggregate(Lambertian, LowCookTorrance) fit: {line[:80]!r}")
-        out[mt["name"]] = {"kd": [float(x) for x in mt["kd"].split(",")],
-                           "ks": [float(x) for x in mt["ks"].split(",")],
-                           "m": float(mt["m"]), "eta": float(mt["eta"])}
+    for name, mdl in read_fit_file(path).items():
+        if not isinstance(mdl, LowCookTorrance):
+            raise ValueError(f"{mdl.origin}: not an Aggregate(Lambertian, LowCookTorrance) fit")
+        out[name] = {"kd": mdl.kd.tolist(), "ks": mdl.ks.tolist(), "m": mdl.m, "eta": mdl.eta}
     return out
-
-
-def _cook_fresnel(eta, c):
-    g = np.sqrt(np.maximum(eta * eta + c * c - 1.0, 0.0))
-    a = (g - c) / (g + c)
-    b = (c * (g + c) - 1.0) / (c * (g - c) + 1.0)
-    return np.maximum(0.5 * a * a * (1.0 + b * b), 0.0)
 
 
 def low_cooktorrance(p, wo, wi, d_norm=1.0):
     """Löw 2012 Cook-Torrance BRDF (N, 3) in 1/sr for directions ``wo``, ``wi`` (N, 3), local frame.
 
-    ``p``: a :func:`parse_low_fits` entry. ``d_norm`` multiplies D (1 = the published form; 1/pi
-    = a normalized Beckmann, for the sensitivity check only). Zero below either horizon.
+    ``p``: a :func:`parse_low_fits` entry. Evaluated by numpy_ref.published.LowCookTorrance.
+    ``d_norm`` multiplies D, hence the specular term (1 = the published form; 1/pi = a normalized
+    Beckmann, for the sensitivity check only). Zero below either horizon.
     """
-    kd, ks = np.asarray(p["kd"], float), np.asarray(p["ks"], float)
-    m, eta = float(p["m"]), float(p["eta"])
+    mdl = LowCookTorrance(p["kd"], p["ks"], p["m"], p["eta"])
     wo, wi = np.asarray(wo, float), np.asarray(wi, float)
-    co, ci = wo[:, 2], wi[:, 2]
-    h = wo + wi
-    h = h / np.maximum(np.linalg.norm(h, axis=1, keepdims=True), 1e-300)
-    ch = h[:, 2]
-    ih, oh = np.sum(wi * h, 1), np.sum(wo * h, 1)
-    ok = (ci > 0) & (co > 0) & (ch > 0) & (ih > 0) & (oh > 0)
-    chs = np.where(ok, ch, 1.0)
-    ihs, ohs = np.where(ok, ih, 1.0), np.where(ok, oh, 1.0)
-    tan2 = (1.0 - chs * chs) / (chs * chs)
-    D = d_norm * np.exp(-tan2 / (m * m)) / (m * m * chs ** 4)
-    G = np.minimum(1.0, np.minimum(2 * chs * np.where(ok, ci, 1.0) / ihs, 2 * chs * np.where(ok, co, 1.0) / ohs))
-    F = _cook_fresnel(eta, 0.5 * (ihs + ohs))
-    spec = np.where(ok, D * G * F / (np.pi * np.where(ok, ci * co, 1.0)), 0.0)
-    diff = np.where((ci >= 0) & (co >= 0), 1.0, 0.0)
-    return kd[None, :] / np.pi * diff[:, None] + ks[None, :] * spec[:, None]
+    return mdl.diffuse(wo, wi) + d_norm * mdl.specular(wo, wi)
 
 
 def e2_cells(pred, y, cos_i, valid=None):

@@ -17,7 +17,11 @@ Modules by topic, everything re-exported here (``import numpy_ref as R``):
   :class:`FamilyModel` (the unconstrained parametrization, residuals, log-probability);
 * :mod:`numpy_ref.directions`, :mod:`numpy_ref.quadrature` -- direction sets, hemisphere rules and
   reference albedos;
-* :mod:`numpy_ref.compare` -- relative errors and the assertion with a report of the worst points.
+* :mod:`numpy_ref.compare` -- relative errors and the assertion with a report of the worst points;
+* :mod:`numpy_ref.published` -- the published analytic fits of the MERL materials (Ngan 2005, Löw
+  2012, Bagher 2012, as the bbm benchmark collection defines them) as numpy BRDFs, and their loader
+  (only :func:`~numpy_ref.published.published_fits` and its error class are re-exported here; the
+  models are ``numpy_ref.published.<Name>``).
 
 All functions work in float64 (inputs are converted) and broadcast numpy-style.
 """
@@ -32,6 +36,7 @@ from .microfacet import Dist, GGXCartesian
 from .models import (coated_conductor_smooth_eval, conductor_eval, conductor_pdf, dielectric_eval, dielectric_pdf,
                      diffuse_probability, diffuse_specular_eval, diffuse_specular_pdf, lambert_eval, lambert_pdf,
                      plastic_smooth_eval, reflection_lobe)
+from .published import PublishedFitError, published_fits
 from .quadrature import ggx_conductor_albedo, upper_hemisphere_rule
 
 __all__ = [
@@ -45,5 +50,6 @@ __all__ = [
     "coated_conductor_smooth_eval", "conductor_eval", "conductor_pdf", "dielectric_eval", "dielectric_pdf",
     "diffuse_probability", "diffuse_specular_eval", "diffuse_specular_pdf", "lambert_eval", "lambert_pdf",
     "plastic_smooth_eval", "reflection_lobe",
+    "PublishedFitError", "published_fits",
     "ggx_conductor_albedo", "upper_hemisphere_rule",
 ]

@@ -496,6 +496,11 @@ class RglBRDF:
         Whether values are multiplied by ``ndf / (4 sigma)``.
     spectral_data : numpy.ndarray, (n_phi, n_theta, C, rows, cols) float64
         The ``rgb`` or ``spectra`` table.
+    ndf, sigma : numpy.ndarray, 2-D float64
+        The ``ndf`` and ``sigma`` tables, indexed ``(phi, theta)`` in unit coordinates.
+    vndf, luminance : numpy.ndarray, (n_phi, n_theta, rows, cols) float64
+        The ``vndf`` and ``luminance`` densities as stored (not normalized); the reader's warps
+        and :class:`matfit.models.MeasuredRGL` are built from them.
     grid_shape : tuple
         ``(rows, cols)`` of the sample-space grid.
     node_valid : numpy.ndarray of bool or None
@@ -590,6 +595,7 @@ class RglBRDF:
             if red != 1:
                 raise data_error("phi_i", "a full 2*pi azimuth range (reduction 1)", f"reduction {red}", file=file)
         self.theta_i, self.phi_i = theta_i, phi_i
+        self.ndf, self.sigma, self.vndf, self.luminance = ndf, sigma, vndf, lum
         self._ndf = _Warp2D(ndf, build_cdf=False)
         self._sigma = _Warp2D(sigma, build_cdf=False)
         self._vndf = _Warp2D(vndf, (phi_i, theta_i))

@@ -4,6 +4,8 @@ from ._base import ALPHA_MIN, MASKING_FORMS, AbstractDistribution
 from .beckmann import Beckmann
 from .blinn_phong import BlinnPhong
 from .ggx import GGX
+from .tabulated import TabulatedNDF, back_facing_area, interpolate_ndf, ndf_grid, projected_mass
+from .extract import EXTRACTION_MASKING, beckmann_ndf, extract_ndf, ggx_ndf, ndf_start
 
 DISTRIBUTIONS = {"ggx": GGX, "beckmann": Beckmann, "blinn_phong": BlinnPhong}
 
@@ -52,4 +54,14 @@ __all__ = [
     "Beckmann",
     "BlinnPhong",
     "make_distribution",
+    "TabulatedNDF",
+    "ndf_grid",
+    "projected_mass",
+    "back_facing_area",
+    "interpolate_ndf",
+    "extract_ndf",
+    "ndf_start",
+    "EXTRACTION_MASKING",
+    "ggx_ndf",
+    "beckmann_ndf",
 ]

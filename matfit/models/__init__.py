@@ -8,12 +8,14 @@ from .diffuse_specular import DiffuseSpecular
 from .gltf_pbr import GltfPBR
 from .lambert import Lambert
 from .layered import CoatedConductor, Layered
+from .measured import MeasuredMERL, MeasuredRGL
 from .plastic import Plastic
 from .rough_conductor import RoughConductor
 from .rough_dielectric import RoughDielectric
 from .smooth_conductor import SmoothConductor
 from .smooth_dielectric import SmoothDielectric
 from .stochastic_layered import StochasticLayered
+from .tabulated_microfacet import TabulatedMicrofacet
 
 __all__ = [
     "AbstractBSDF",
@@ -29,8 +31,11 @@ __all__ = [
     "Blend",
     "DiffuseSpecular",
     "GltfPBR",
+    "MeasuredMERL",
+    "MeasuredRGL",
     "RoughConductor",
     "RoughDielectric",
     "SmoothConductor",
     "SmoothDielectric",
+    "TabulatedMicrofacet",
 ]
