@@ -1,484 +1,547 @@
-"""Fit matfit families to measured BRDFs with the Löw 2012 E2 loss; compare with the published Löw fits.
+"""Fit every reflection family to every cell of measured BRDF tables; compare with every published fit.
 
-MERL (neural surrogates of Sztrajman et al. 2021 in the MERL file layout, shared/tools/merl_surrogate.py):
-for each material, a fit table of ``--n-rows`` direction pairs drawn as Löw's metric samples them
-(bbm ``lowLog``, see experiments/_low2012.py): theta_i, phi_i, theta_o uniform, phi_o = 0, weight
-sin(theta_i) (normalized to mean 1), values looked up in the MERL table with MERL's cell rule
-(matfit.io.merl.MerlBRDF.lookup). matfit families are fitted with ``loss="e2"`` on that table, so
-the fit minimizes the same weighted E2 that the published Löw Cook-Torrance E2 fit minimized; the
-published fit (experiments/_low2012.py) is evaluated on the same rows. Secondary reading: E2 over
-``--n-cells`` random valid MERL cells, every cell weighted equally (matfit's plain E2 on a MERL
-table), for both.
+Protocol (matfit issue #19, parts 3 and 5):
 
-RGL (Dupuy & Jakob 2018 measurements, shared/data/rgl/*.bsdf): every file fitted on its valid rows
-(subsampled to ``--n-rgl`` where it has more; padded with zero-weight rows where it has fewer, so
-all files share one compiled solver), loss ``e2`` with equal row weights.
+* **Tables.** MERL: the 100 surrogates of Sztrajman et al. 2021 in the MERL layout
+  (``shared/tools/merl_surrogate.py``), read with :func:`matfit.io.merl.read_merl`, every cell of
+  the 90 x 90 x 180 grid (:meth:`MerlBRDF.to_table`). RGL: the 7 files of ``shared/data/rgl``
+  (:func:`matfit.io.load`), every row.
+* **Split.** :meth:`matfit.Table.split` with ``frac = 0.8`` and seed :data:`SPLIT_SEED`: a fixed
+  random 80 % of the rows (cells) for fitting, the other 20 % held out; invalid cells are dropped
+  from both parts afterwards. Every MERL table has the same 1 458 000 rows, so every MERL material
+  is split at the same cells and every published fit of a material is scored on exactly the cells
+  matfit's fits are scored on.
+* **Fits.** Each family (``--families``: any key of :data:`matfit.fitting.FAMILIES`; default every
+  family that models reflection only, :func:`reflection_families`) is fitted with the default call
+  ``fit(train, model=family, loss="e2")`` (default method, starts and steps). The training cells
+  are padded to a fixed row count (:func:`padded`, a multiple of :data:`BUCKET`) with copies of one
+  cell at weight :data:`PAD_WEIGHT`: ``fit`` drops rows of zero weight, which would give each
+  material its own array shapes and so its own compilation; with the padding every MERL material
+  has the same shapes and each family compiles once (and the persistent cache of
+  :mod:`matfit.cache` keeps the programs across runs). The padding adds ``< 1e-150`` to the
+  objective; AIC/BIC below count the real cells only.
+* **Scores.** On the held-out valid cells, every cell and channel weighted equally:
+  ``e2`` = mean of ``(log(1 + f cos_i) - log(1 + y cos_i))^2`` (the residuals of
+  ``loss="e2"``, :func:`matfit.fitting.residuals`), and ``ngan_l2`` = root mean square of
+  ``(f - y) cos_i`` (the cosine-weighted L2 of Ngan et al. 2005, ``loss="cosine"``). On the
+  training cells ``aic = n log(RSS / n) + 2 p`` and ``bic = n log(RSS / n) + p log n`` with RSS the
+  fit's E2 residual sum of squares and n the real residuals (as :func:`matfit.fitting.compare_models`
+  defines them). **The chosen family is the one of lowest held-out E2** (the BIC choice is
+  recorded too). A fit is flagged when ``FitResult.converged`` is false or its diagnostics
+  (``FitResult.warnings``) say a parameter ends at a bound.
+* **Published fits** (MERL only): every evaluable model of :func:`numpy_ref.published.published_fits`
+  for the material (Löw CT / AS E1, E2, smooth and microfacet ABC; Bagher SGD; Ngan CT, AS,
+  Blinn-Phong, Ward, Ward-Dür, Lafortune; Ngan's He et al. fits cannot be evaluated, see
+  docs/published_fits.md) on the same held-out cells; ratio = held-out E2 of matfit's chosen family
+  / that of the best published fit.
+* **Output.** ``experiments/results/fit_measured/<kind>_<name>.json`` per material as soon as it is
+  done (a rerun skips the families a file already has); a report of the chosen family
+  (:func:`matfit.report.write_report`, on the held-out cells: relative RMSE, CIEDE2000) under
+  ``experiments/results/reports/<name>/``; the page ``experiments/results/fit_measured.md`` and the
+  plot ``fit_measured_ratio.png`` rebuilt from the JSON files at the end (or with ``--summary``).
 
-Each material / file gets a JSON under experiments/results/fit_measured/ as soon as it is done (a
-rerun skips what is there) and a report (matfit.report.write_report with the per-iteration loss
-history of matfit.fitting.loss_history) for its best family under reports/<name>/. The summary
-(fit_measured.md, fit_measured.json) is rebuilt from the JSON files at the end (or with --summary).
-
-Usage: python experiments/fit_measured.py [SHARED] [--materials a,b] [--skip-rgl] [--skip-merl]
-       [--extra] [--summary]
+Usage: python experiments/fit_measured.py [SHARED] [--quick] [--families a,b] [--materials a,b]
+       [--rgl a,b] [--skip-merl] [--skip-rgl] [--no-report] [--summary]
 """
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import platform
 import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
 OUT = REPO / "experiments" / "results"
 ITEMS = OUT / "fit_measured"
 REPORTS = OUT / "reports"
-sys.path.insert(0, str(HERE))
+CACHES = (REPO / "benchmarks" / "results" / "cache", OUT / "cache")  # surrogate .binary files, read first
+if str(REPO) not in sys.path:
+    sys.path.insert(0, str(REPO))
 
-from _low2012 import e2_cells, e2_weighted, low_cooktorrance, parse_low_fits  # noqa: E402
-
-# A spread: plastics, phenolic/acrylic, metals, metallic paints and paints, fabrics.
+#: Fraction of the cells fitted, and the seed of the split (:meth:`matfit.Table.split`).
+TRAIN_FRACTION = 0.8
+SPLIT_SEED = 0
+#: Training tables are padded up to a multiple of this many rows (one compiled solver per family).
+BUCKET = 1 << 15
+#: Weight of the padding rows: positive, so that ``fit`` keeps them (shapes stay fixed), and
+#: small enough that they change no objective, gradient or step.
+PAD_WEIGHT = 1e-300
+#: Families that model transmission as well: a reflection table cannot constrain them.
+TRANSMISSIVE = ("dielectric",)
+#: ``--quick``: four MERL surrogates (a plastic, a paint, a metal, a metallic paint) and one RGL file.
+QUICK_MERL = ("white-paint", "red-plastic", "nickel", "blue-metallic-paint")
+QUICK_RGL = ("paper_white_rgb",)
+#: The spread of MERL materials of the earlier 1,500-row protocol (experiments/validate_low2012.py reads it).
 MATERIALS = ["red-plastic", "yellow-matte-plastic", "black-phenolic", "blue-acrylic", "aluminium", "brass",
              "nickel", "gold-metallic-paint", "blue-metallic-paint", "white-paint", "beige-fabric", "pink-felt"]
-FAMILIES = ("plastic", "conductor")
-EXTRA = {"car_paint": ["gold-metallic-paint", "blue-metallic-paint", "cc_ibiza_sunset_rgb", "cc_iris_purple_gem_rgb"]}
+
+
+def reflection_families():
+    """The registry's families that model reflection only (every key of FAMILIES but TRANSMISSIVE)."""
+    from matfit.fitting import FAMILIES
+
+    return [f for f in FAMILIES if f not in TRANSMISSIVE]
 
 
 def parse_args(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("shared", nargs="?", default=str(REPO.parent / "shared"),
                     help="shared folder (default: ../shared relative to the repo root)")
-    ap.add_argument("--materials", default=None, help="comma-separated MERL names (default: the built-in spread)")
-    ap.add_argument("--n-rows", type=int, default=1500, help="Löw-sampled rows per MERL fit table")
-    ap.add_argument("--n-cells", type=int, default=1500, help="MERL cells for the cell-uniform reading")
-    ap.add_argument("--n-rgl", type=int, default=1500,
-                    help="rows per RGL fit table (= --n-rows: one compiled solver serves both)")
-    ap.add_argument("--starts", type=int, default=2)
-    ap.add_argument("--two-inits", action="store_true", help="also fit from a generic mid-range point")
-    ap.add_argument("--max-steps", type=int, default=50)
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--quick", action="store_true",
+                    help=f"only MERL {', '.join(QUICK_MERL)} and RGL {', '.join(QUICK_RGL)}")
+    ap.add_argument("--families", default=None,
+                    help="comma-separated family names, any key of matfit.fitting.FAMILIES "
+                         "(default: every reflection family)")
+    ap.add_argument("--materials", default=None, help="comma-separated MERL names (default: all 100)")
     ap.add_argument("--rgl", default=None, help="comma-separated RGL file stems (default: every .bsdf)")
-    ap.add_argument("--skip-rgl", action="store_true")
     ap.add_argument("--skip-merl", action="store_true")
-    ap.add_argument("--extra", action="store_true", help="also fit car_paint to the metallic paints / films")
-    ap.add_argument("--summary", action="store_true", help="only rebuild fit_measured.md/.json from the JSON files")
-    ap.add_argument("--heldout", type=int, default=0,
-                    help="evaluate the stored MERL fits and the Löw fit on N fresh Löw-sampled rows (seed + 1)")
-    ap.add_argument("--x32", action="store_true", help="float32 instead of float64")
+    ap.add_argument("--skip-rgl", action="store_true")
+    ap.add_argument("--no-report", action="store_true", help="no write_report per material")
+    ap.add_argument("--summary", action="store_true", help="only rebuild the page from the JSON files")
     return ap.parse_args(argv)
 
 
-# ------------------------------------------------------------------ tables
-def low_sampled_table(brdf, n, seed):
-    """``n`` Löw-metric samples of a MERL table (see the module docstring) as a weighted Table."""
-    import numpy as np
+def check_families(names):
+    """``names`` (a comma-separated string or a list) as a list of registry keys; a clear error otherwise."""
+    from matfit.fitting import FAMILIES
 
+    fams = [f.strip() for f in names.split(",") if f.strip()] if isinstance(names, str) else list(names)
+    bad = [f for f in fams if f not in FAMILIES]
+    if bad or not fams:
+        raise SystemExit(f"fit_measured: --families must name families of matfit.fitting.FAMILIES "
+                         f"({', '.join(FAMILIES)}); unknown: {bad or 'none given'}")
+    return fams
+
+
+# ------------------------------------------------------------------ tables
+def split_cells(table, frac=TRAIN_FRACTION, seed=SPLIT_SEED):
+    """``(train, heldout)``: :meth:`Table.split` of all rows, then each part's valid rows only."""
+    fit_part, hold_part = table.split(frac, seed=seed)
+    return fit_part.select(fit_part.valid), hold_part.select(hold_part.valid)
+
+
+def padded(table, bucket=BUCKET):
+    """``table`` (valid rows, unit weight) padded with copies of its first row at weight
+    :data:`PAD_WEIGHT` up to the next multiple of ``bucket`` rows; and the real row count."""
     from matfit import Table
 
-    rng = np.random.default_rng(seed)
-    ti = rng.uniform(0, np.pi / 2, n)
-    pi_ = rng.uniform(0, np.pi, n)  # isotropy: phi_i in (pi, 2 pi) mirrors (0, pi) about the plane phi_o = 0
-    to = rng.uniform(0, np.pi / 2, n)
-    wi = np.stack([np.sin(ti) * np.cos(pi_), np.sin(ti) * np.sin(pi_), np.cos(ti)], -1)
-    wo = np.stack([np.sin(to), np.zeros(n), np.cos(to)], -1)
-    vals, ok = brdf.lookup(wo, wi)
-    w = np.sin(ti) / np.mean(np.sin(ti))
-    return Table(wo=wo, wi=wi, values=vals, valid=ok, weight=np.repeat(w[:, None], 3, 1), channels="rgb",
-                 provenance={"format": "merl", "source": brdf.source,
-                             "geometry": f"Löw E2 sampling: {n} uniform (theta_i, phi_i, theta_o), phi_o = 0, "
-                                         f"weight sin(theta_i), seed {seed}"})
+    n = len(table)
+    m = max(bucket, -(-n // bucket) * bucket)
+    idx = np.concatenate([np.arange(n), np.zeros(m - n, dtype=int)])
+    w = np.ones((m, table.n_channels))
+    w[n:] = PAD_WEIGHT
+    t = Table(wo=table.wo[idx], wi=table.wi[idx], values=table.values[idx], weight=w, channels=table.channels,
+              provenance={**table.provenance, "padding": f"{m - n} copies of row 0 at weight {PAD_WEIGHT:g}"})
+    return t, n
 
 
-def padded(table, n, seed):
-    """``n`` rows: a random subset of the valid rows, or all of them plus zero-weight copies."""
-    import numpy as np
-
-    valid = np.flatnonzero(table.valid)
-    if valid.size >= n:
-        return table.subsample(n, seed=seed), n
-    idx = np.concatenate([valid, np.resize(valid, n - valid.size)])
-    t = table.select(idx)
-    ok = t.valid.copy()
-    ok[valid.size:] = False
-    return t.replace(valid=ok), int(valid.size)
-
-
-# ------------------------------------------------------------------ fitting
-def fit_family(table, fam, args):
-    """fit() from the data-driven guess (``args.starts`` starts); from a generic mid-range point as well
-    (as select.robust_fit does) with ``--two-inits`` or when the first fails. The better result and
-    the init that gave it."""
-    from matfit.fitting import FitError, fit
-    from matfit.fitting.fit import initial_guess
-    from matfit.fitting.params import Parametrization
-
-    par = Parametrization(fam, table.n_channels)
-    first = initial_guess(table, par)
-    second = par.family.generic_start(first, [p.name for p in par.free])
-    best, binit, err = None, None, None
-    for init in (None, second):
-        if init is not None and best is not None and not args.two_inits:
-            break
-        try:
-            r = fit(table, model=fam, loss="e2", init=init, starts=args.starts, seed=args.seed, max_steps=args.max_steps)
-        except FitError as e:
-            err = e
-            continue
-        if best is None or r.objective < best.objective:
-            best, binit = r, init
-    if best is None:
-        raise err
-    return best, binit
-
-
-def pred_of(model, wo, wi):
+def scores(pred, table):
+    """Held-out scores of predictions ``pred`` (N, C) on ``table`` (valid rows, unit weights):
+    ``e2`` (mean squared E2 residual) and ``ngan_l2`` (RMS cosine-weighted difference), both from
+    :func:`matfit.fitting.residuals`."""
     import jax.numpy as jnp
-    import numpy as np
 
-    return np.asarray(model.eval(jnp.asarray(wo), jnp.asarray(wi)), dtype=np.float64)
+    from matfit.fitting import residuals
+
+    w = jnp.ones_like(jnp.asarray(table.values))
+    args = (jnp.asarray(pred, dtype=float), jnp.asarray(table.values), w, jnp.asarray(table.wi[:, 2]))
+    e2 = float(jnp.mean(residuals(*args, loss="e2") ** 2))
+    ngan = float(jnp.sqrt(jnp.mean(residuals(*args, loss="cosine") ** 2)))
+    return {"e2": e2, "ngan_l2": ngan}
+
+
+def predict(model, table):
+    """A matfit model's BRDF (N, C) at the rows of ``table`` (float64 numpy)."""
+    import jax.numpy as jnp
+
+    return np.asarray(model.eval(jnp.asarray(table.wo), jnp.asarray(table.wi)), dtype=np.float64)
 
 
 def jsonable(x):
-    import numpy as np
-
     if isinstance(x, dict):
         return {k: jsonable(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
         return [jsonable(v) for v in x]
     if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, (np.floating, np.integer)):
+        return jsonable(x.tolist())
+    if isinstance(x, (np.floating, np.integer, np.bool_)):
         return x.item()
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
     return x
 
 
-def fam_record(res, init, seconds):
-    return {"objective": res.objective, "converged": bool(res.converged), "steps": int(res.steps), "seconds": seconds,
-            "params": {k: jsonable(v) for k, v in res.params.items()},
-            "labels": list(res.labels), "values": jsonable(res.values), "stderr": jsonable(res.stderr),
-            "start_objectives": jsonable(res.start_objectives), "init": "generic" if init is not None else "data",
-            "warnings": list(getattr(res, "warnings", []) or [])}
+# ------------------------------------------------------------------ one material
+def fit_family(train, n_real, heldout, fam):
+    """The default ``fit(train, model=fam, loss="e2")``, and its record: held-out scores, AIC/BIC on
+    the ``n_real`` real training rows, convergence and bound warnings as the fit reports them."""
+    from matfit.fitting import fit
+
+    t0 = time.perf_counter()
+    res = fit(train, model=fam, loss="e2")
+    seconds = time.perf_counter() - t0
+    n, p = n_real * train.n_channels, len(res.labels)
+    ll = n * math.log(max(float(res.rss), 1e-300) / n)
+    warns = list(res.warnings or [])
+    rec = {"held_out": scores(predict(res.model, heldout), heldout), "train_e2": 2 * res.objective / n,
+           "aic": ll + 2 * p, "bic": ll + p * math.log(n), "p": p, "n": n,
+           "converged": bool(res.converged), "steps": int(res.steps), "seconds": seconds,
+           "at_bound": [w for w in warns if w.startswith("at a bound")], "warnings": warns, "info": list(res.info),
+           "params": {k: jsonable(np.asarray(v)) for k, v in res.params.items()}}
+    return res, rec
 
 
-def report(res, init, fit_table, report_table, name, title, args):
-    """Loss history (re-run with a callback) and write_report; errors are recorded, not fatal."""
-    from matfit.fitting import loss_history
+def published_scores(models, heldout):
+    """Held-out scores of every evaluable published model ``{source: model}``; ``{source: reason}``
+    for the others."""
+    out, skipped = {}, {}
+    for src, mdl in sorted(models.items()):
+        try:
+            pred = mdl(heldout.wo, heldout.wi)
+        except NotImplementedError as e:
+            skipped[src] = str(e).split("\n")[0][:160]
+            continue
+        out[src] = scores(pred, heldout)
+    return out, skipped
+
+
+def fit_material(table, families, published=None, rec=None, bucket=BUCKET, log=print):
+    """The protocol on one table: split, every family fitted and scored, published fits scored.
+
+    Parameters
+    ----------
+    table : matfit.Table
+        The whole measured table (invalid rows allowed).
+    families : list of str
+        Keys of :data:`matfit.fitting.FAMILIES`.
+    published : dict, optional
+        ``{source: model}`` of numpy_ref.published models to score on the same held-out cells.
+    rec : dict, optional
+        A record of an earlier run: families it has are not fitted again.
+    bucket : int
+        Padding granularity of the training rows (:func:`padded`).
+
+    Returns
+    -------
+    rec : dict
+        JSON-ready: split sizes, ``fits`` per family, ``chosen`` (lowest held-out E2), ``chosen_bic``,
+        ``published``, ``best_published``, ``ratio``.
+    results : dict
+        ``{family: FitResult}`` of the families fitted in this call.
+    heldout : matfit.Table
+        The held-out valid cells.
+    """
+    rec = dict(rec or {})
+    train, heldout = split_cells(table)
+    ptrain, n_real = padded(train, bucket)
+    rec.update({"n_rows": len(table), "n_valid": int(table.n_valid), "n_train": n_real, "n_train_padded": len(ptrain),
+                "n_heldout": len(heldout), "split": {"frac": TRAIN_FRACTION, "seed": SPLIT_SEED}})
+    fits = dict(rec.get("fits", {}))
+    results = {}
+    for fam in families:
+        if "held_out" in fits.get(fam, {}):  # fitted before (a failed family is tried again)
+            continue
+        try:
+            results[fam], fits[fam] = fit_family(ptrain, n_real, heldout, fam)
+        except Exception as e:  # noqa: BLE001 - one failed family must not stop the protocol
+            fits[fam] = {"error": f"{type(e).__name__}: {e}"[:400]}
+            log(f"  {fam}: failed: {fits[fam]['error']}")
+            continue
+        d = fits[fam]
+        flag = ("" if d["converged"] else " NOT CONVERGED") + (f" {len(d['at_bound'])} at bound" if d["at_bound"] else "")
+        log(f"  {fam}: held-out E2 {d['held_out']['e2']:.4g}, BIC {d['bic']:.5g} ({d['seconds']:.1f} s){flag}")
+    rec["fits"] = fits
+    ok = {f: d for f, d in fits.items() if "held_out" in d and f in families}
+    rec["chosen"] = min(ok, key=lambda f: ok[f]["held_out"]["e2"]) if ok else None
+    rec["chosen_bic"] = min(ok, key=lambda f: ok[f]["bic"]) if ok else None
+    if published is not None:
+        rec["published"], rec["published_skipped"] = published_scores(published, heldout)
+        pub = rec["published"]
+        rec["best_published"] = min(pub, key=lambda s: pub[s]["e2"]) if pub else None
+        if rec["best_published"] and rec["chosen"]:
+            rec["ratio"] = ok[rec["chosen"]]["held_out"]["e2"] / pub[rec["best_published"]]["e2"]
+    return rec, results, heldout
+
+
+def write_material_report(rec, results, heldout, name, title):
+    """write_report on the held-out cells of the chosen family, or, where its report fails, of the
+    next family by held-out E2 (``report_family`` says which; ``report_errors`` why); only
+    families fitted in this run (a FitResult is needed)."""
+    import shutil
+
     from matfit.report import write_report
 
+    fits = rec["fits"]
+    order = sorted((f for f in results if "held_out" in fits[f]), key=lambda f: fits[f]["held_out"]["e2"])
+    if rec.get("chosen") not in results:
+        return
     out = REPORTS / name
-    t0 = time.perf_counter()
-    try:
-        hist = loss_history(fit_table, res.family, loss="e2", starts=args.starts, seed=args.seed,
-                            max_steps=args.max_steps, init=init)
-        write_report(res, report_table, out, history=hist, title=title, max_rows=5000)
-        return {"report": str(out.relative_to(REPO)), "report_seconds": time.perf_counter() - t0,
-                "history_final": [float(h[-1]) for h in hist]}
-    except Exception as e:  # noqa: BLE001 - a report bug must not lose the fit
-        return {"report_error": f"{type(e).__name__}: {e}"}
-
-
-def fit_and_report(rec, todo, table, args, metrics, name, title, report_table):
-    """Fit each family in ``todo`` on ``table``, store its record and ``metrics`` (name -> f(model));
-    the family of lowest first metric gets the report (``report_table()`` gives its table)."""
-    rec.setdefault("fits", {})
-    results = {}
-    key = next(iter(metrics))
-    for fam in todo:
-        t1 = time.perf_counter()
+    shutil.rmtree(out, ignore_errors=True)  # no file of an earlier report stays next to this one
+    errors = {}
+    for fam in order:
+        t0 = time.perf_counter()
         try:
-            res, init = fit_family(table, fam, args)
-        except Exception as e:  # noqa: BLE001 - one failed family must not stop the run
-            rec["fits"][fam] = {"error": f"{type(e).__name__}: {e}"}
+            s = write_report(results[fam], heldout, out, title=f"{title}: {fam}, E2 loss; metrics on the held-out cells")
+        except Exception as e:  # noqa: BLE001 - a report bug must not lose the fits
+            errors[fam] = f"{type(e).__name__}: {e}"[:300]
+            shutil.rmtree(out, ignore_errors=True)
             continue
-        r = fam_record(res, init, time.perf_counter() - t1)
-        r.update({m: fn(res.model) for m, fn in metrics.items()})
-        rec["fits"][fam] = r
-        results[fam] = (res, init)
-        print(f"[{rec['kind']}] {name} {fam}: " + " ".join(f"{m} {r[m]:.4g}" for m in metrics)
-              + f" ({r['seconds']:.0f} s)", flush=True)
-    ok_f = {f: d for f, d in rec["fits"].items() if key in d}
-    best = min(ok_f, key=lambda f: ok_f[f][key]) if ok_f else None
-    if best is not None and best in results and best != rec.get("best_reported"):
-        res, init = results[best]
-        rec.update(report(res, init, table, report_table(), name, title.format(best=best), args))
-        rec["best_reported"] = best
-    rec["best"] = best
+        cd = s.get("colour_difference") or {}
+        rec.update({"report": str(out.relative_to(REPO)), "report_family": fam,
+                    "report_seconds": time.perf_counter() - t0, "relative_rmse": s["metrics"].get("relative_rmse"),
+                    "ciede2000": cd.get("delta_e_mean_appearance"),
+                    "ciede2000_rows_median": cd.get("delta_e_rows_median")})
+        break
+    for k in ("report_errors", "report_error"):
+        rec.pop(k, None)
+    if errors:
+        rec["report_errors"] = errors
 
 
-# ------------------------------------------------------------------ MERL
-def run_merl(name, low, args, shared):
-    import numpy as np
-
-    import merl_surrogate  # noqa: F401 (path set in main)
+# ------------------------------------------------------------------ drivers
+def merl_table(name, merl_surrogate):
+    """The MERL table of a surrogate: a cached .binary (CACHES) or one written now (and removed after)."""
     from matfit.io.merl import read_merl
 
-    jpath = ITEMS / f"merl_{name}.json"
-    rec = json.loads(jpath.read_text()) if jpath.exists() else {"kind": "merl", "material": name}
-    fams = list(FAMILIES) + [f for f, names in EXTRA.items() if args.extra and name in names]
-    todo = [f for f in fams if f not in rec.get("fits", {})]
-    if not todo:
-        return rec
+    for d in CACHES:
+        if (d / f"{name}.binary").exists():
+            return read_merl(d / f"{name}.binary").to_table()
+    tmp = CACHES[-1] / f"{name}.binary"
+    tmp.parent.mkdir(parents=True, exist_ok=True)
+    merl_surrogate.write_merl(name, str(tmp))
+    try:
+        return read_merl(tmp).to_table()
+    finally:
+        tmp.unlink()
+
+
+def run_one(kind, name, families, get_table, published, args):
+    jpath = ITEMS / f"{kind}_{name}.json"
+    old = json.loads(jpath.read_text()) if jpath.exists() else {"kind": kind, "material": name}
+    if all("held_out" in old.get("fits", {}).get(f, {}) for f in families) and (published is None or "published" in old):
+        print(f"[{kind}] {name}: done before, skipped", flush=True)
+        return old
+    print(f"[{kind}] {name}", flush=True)
     t0 = time.perf_counter()
-    cache = OUT / "cache"
-    path = cache / f"{name}.binary"
-    if not path.exists():
-        merl_surrogate.write_merl(name, str(path))
-    brdf = read_merl(path)
-    table = low_sampled_table(brdf, args.n_rows, args.seed)
-    cells = brdf.to_table().subsample(args.n_cells, seed=args.seed)
-    w = table.effective_weight()[:, 0]
-    ok = table.valid
-    p = low[name]
-    if "low_ct" not in rec:
-        lw = {}
-        for lab, dn in (("published", 1.0), ("D_over_pi", 1 / np.pi)):
-            lw[lab] = {"e2_low_sin": e2_weighted(low_cooktorrance(p, table.wo, table.wi, dn)[ok], table.values[ok],
-                                                 table.wi[ok, 2], w[ok]),
-                       "e2_cells": e2_cells(low_cooktorrance(p, cells.wo, cells.wi, dn), cells.values, cells.wi[:, 2],
-                                            cells.valid)}
-        rec["low_ct"] = {"params": p, **lw}
-        rec.update({"n_rows": len(table), "n_rows_valid": int(ok.sum()), "n_cells": len(cells), "seed": args.seed})
-    metrics = {"e2_low_sin": lambda m: e2_weighted(pred_of(m, table.wo[ok], table.wi[ok]), table.values[ok],
-                                                   table.wi[ok, 2], w[ok]),
-               "e2_cells": lambda m: e2_cells(pred_of(m, cells.wo, cells.wi), cells.values, cells.wi[:, 2], cells.valid)}
-    fit_and_report(rec, todo, table, args, metrics, name, f"MERL {name} (surrogate): {{best}}, E2 loss (Löw sampling)",
-                   brdf.to_table)
+    rec, results, heldout = fit_material(get_table(), families, published, rec=old,
+                                         log=lambda s: print(s, flush=True))
+    if not args.no_report:
+        write_material_report(rec, results, heldout, name, f"{kind.upper()} {name}")
     rec["seconds"] = rec.get("seconds", 0) + time.perf_counter() - t0
     jpath.write_text(json.dumps(jsonable(rec), indent=1))
-    path.unlink()  # 35 MB; rebuilt on demand
+    r = f", ratio {rec['ratio']:.3g} vs {rec['best_published']}" if rec.get("ratio") is not None else ""
+    print(f"[{kind}] {name}: chosen {rec['chosen']}{r} ({time.perf_counter() - t0:.0f} s)", flush=True)
     return rec
 
 
-def model_from_params(fam, params, channels=3):
-    import jax.numpy as jnp
-
-    from matfit.fitting import get_family
-
-    f = get_family(fam)
-    full = {}
-    for p in f.params:
-        v = jnp.asarray(params[p.name], dtype=float)
-        full[p.name] = jnp.broadcast_to(jnp.atleast_1d(v), (channels,)) if p.per_channel else v
-    return f.build(full, channels)
-
-
-def heldout_merl(name, low, args):
-    """E2 (Löw sampling) of the stored fits and of the published fit on ``args.heldout`` fresh rows:
-    rows the matfit fits did not see, so that neither side is scored on its own fitting sample."""
-    import merl_surrogate  # noqa: F401 (path set in main)
-    from matfit.io.merl import read_merl
-
-    jpath = ITEMS / f"merl_{name}.json"
-    if not jpath.exists():
-        return
-    rec = json.loads(jpath.read_text())
-    if rec.get("heldout", {}).get("n") == args.heldout:
-        return
-    path = OUT / "cache" / f"{name}.binary"
-    if not path.exists():
-        merl_surrogate.write_merl(name, str(path))
-    table = low_sampled_table(read_merl(path), args.heldout, args.seed + 1)
-    ok = table.valid
-    w = table.effective_weight()[ok, 0]
-    wo, wi, y = table.wo[ok], table.wi[ok], table.values[ok]
-    ho = {"n": args.heldout, "seed": args.seed + 1,
-          "low_ct": e2_weighted(low_cooktorrance(low[name], wo, wi), y, wi[:, 2], w)}
-    for fam, d in rec.get("fits", {}).items():
-        if "params" in d:
-            ho[fam] = e2_weighted(pred_of(model_from_params(fam, d["params"]), wo, wi), y, wi[:, 2], w)
-    rec["heldout"] = ho
-    jpath.write_text(json.dumps(jsonable(rec), indent=1))
-    path.unlink()
-    print(f"[heldout] {name}: " + " ".join(f"{k} {v:.4g}" for k, v in ho.items() if k not in ("n", "seed")), flush=True)
-
-
-# ------------------------------------------------------------------ RGL
-def run_rgl(path, args):
-    from matfit.io import load
-
-    name = path.stem
-    jpath = ITEMS / f"rgl_{name}.json"
-    rec = json.loads(jpath.read_text()) if jpath.exists() else {"kind": "rgl", "file": path.name}
-    fams = list(FAMILIES) + [f for f, names in EXTRA.items() if args.extra and name in names]
-    todo = [f for f in fams if f not in rec.get("fits", {})]
-    if not todo:
-        return rec
-    t0 = time.perf_counter()
-    full = load(path)
-    table, n_real = padded(full, args.n_rgl, args.seed)
-    rec.update({"n_rows_full": len(full), "n_valid_full": int(full.n_valid), "n_rows_fit": n_real})
-    metrics = {"e2_fit_rows": lambda m: e2_cells(pred_of(m, table.wo, table.wi), table.values, table.wi[:, 2], table.valid),
-               "e2_all_rows": lambda m: e2_cells(pred_of(m, full.wo, full.wi), full.values, full.wi[:, 2], full.valid)}
-    fit_and_report(rec, todo, table, args, metrics, name, f"RGL {name}: {{best}}, E2 loss", lambda: full)
-    rec["seconds"] = rec.get("seconds", 0) + time.perf_counter() - t0
-    jpath.write_text(json.dumps(jsonable(rec), indent=1))
-    return rec
-
-
-# ------------------------------------------------------------------ main
 def main(argv=None):
     args = parse_args(argv)
     shared = Path(args.shared).resolve()
-    fitfile = shared / "data" / "published_fits" / "low_cooktorrance_E2.fit"
-    need = [shared / "tools" / "merl_surrogate.py", fitfile, shared / "data" / "rgl"]
+    need = [shared / "tools" / "merl_surrogate.py", shared / "data" / "published_fits", shared / "data" / "rgl"]
     missing = [str(p) for p in need if not p.exists()]
     if missing:
         sys.exit(f"fit_measured: shared folder {shared} is missing or incomplete; not found: {', '.join(missing)}.\n"
                  f"Pass the shared folder as the first argument (default: ../shared relative to the repo root).")
     ITEMS.mkdir(parents=True, exist_ok=True)
-    if not args.summary:
-        import jax
+    if args.summary:
+        return write_summary(None)
+    import jax
 
-        if not args.x32:
-            jax.config.update("jax_enable_x64", True)
-        sys.path.insert(0, str(shared / "tools"))
-        import merl_surrogate
+    jax.config.update("jax_enable_x64", True)
+    from matfit.cache import enable_compilation_cache
 
-        cache = OUT / "cache"
-        cache.mkdir(parents=True, exist_ok=True)
-        if not (cache / ".gitignore").exists():
-            (cache / ".gitignore").write_text("*\n!.gitignore\n")
-        low = parse_low_fits(fitfile)
-        available = set(merl_surrogate.materials())
-        names = args.materials.split(",") if args.materials else MATERIALS
+    enable_compilation_cache()
+    families = check_families(args.families) if args.families else reflection_families()
+    sys.path.insert(0, str(shared / "tools"))
+    import merl_surrogate
+
+    from matfit.io import load
+    from numpy_ref.published import published_fits
+
+    pub = published_fits(shared)
+    available = set(merl_surrogate.materials())
+    names = list(QUICK_MERL) if args.quick else (args.materials.split(",") if args.materials else sorted(available))
+    unknown = [n for n in names if n not in available]
+    if unknown:
+        sys.exit(f"fit_measured: no surrogate for MERL material(s) {unknown}; see merl_surrogate.py --list")
+    rgl = sorted((shared / "data" / "rgl").glob("*.bsdf"))
+    wanted = QUICK_RGL if args.quick else (args.rgl.split(",") if args.rgl else None)
+    if wanted is not None:
+        rgl = [p for p in rgl if p.stem in wanted]
+    T0 = time.perf_counter()
+    if not args.skip_merl:
         for n in names:
-            if n not in low or n not in available:
-                sys.exit(f"fit_measured: no published Löw fit or no surrogate for MERL material {n!r}")
-        T0 = time.perf_counter()
-        if args.heldout:
-            for name in names:
-                heldout_merl(name, low, args)
-        elif not args.skip_merl:
-            for name in names:
-                run_merl(name, low, args, shared)
-        if not args.skip_rgl and not args.heldout:
-            for path in sorted((shared / "data" / "rgl").glob("*.bsdf")):
-                if args.rgl is None or path.stem in args.rgl.split(","):
-                    run_rgl(path, args)
-        print(f"fits done in {time.perf_counter() - T0:.0f} s", flush=True)
-    write_summary(args)
+            run_one("merl", n, families, lambda n=n: merl_table(n, merl_surrogate), pub.get(n, {}), args)
+    if not args.skip_rgl:
+        for p in rgl:
+            run_one("rgl", p.stem, families, lambda p=p: load(p), None, args)
+    wall = time.perf_counter() - T0
+    print(f"fits done in {wall:.0f} s", flush=True)
+    write_summary({"wall_s": wall, "quick": args.quick, "families": families, "n_merl": 0 if args.skip_merl else len(names),
+                   "n_rgl": 0 if args.skip_rgl else len(rgl)})
 
 
 # ------------------------------------------------------------------ summary
 def _g(v, nd=3):
-    return f"{v:.{nd}g}" if isinstance(v, (int, float)) else "-"
+    return f"{v:.{nd}g}" if isinstance(v, (int, float)) and not isinstance(v, bool) else "-"
 
 
-def _params(d):
-    parts = []
-    for k, v in d.items():
-        if isinstance(v, list):
-            parts.append(f"{k}=[" + ", ".join(f"{x:.3g}" for x in v) + "]")
-        else:
-            parts.append(f"{k}={v:.3g}")
-    return ", ".join(parts)
+def _why(rec):
+    """What can be seen of a loss: the chosen family's flags and the published model that wins."""
+    d = rec["fits"][rec["chosen"]]
+    why = [f"chosen {rec['chosen']}", f"best published {rec['best_published']}"]
+    if not d["converged"]:
+        why.append("not converged")
+    if d["at_bound"]:
+        why.append("at bound: " + "; ".join(w.split(":")[1].split(" is at")[0].strip() for w in d["at_bound"]))
+    return ", ".join(why)
 
 
-def write_summary(args):
+def _report_link(r):
+    if "report" not in r:
+        return "no report" + (f" ({'; '.join(r['report_errors'])} failed)" if r.get("report_errors") else "")
+    other = f" ({r['report_family']}: the chosen family's report failed)" if r["report_family"] != r["chosen"] else ""
+    return f"[report](reports/{r['material']}/report.md){other}"
+
+
+def estimate(merl, rgl):
+    """Seconds of a full run (100 MERL + 7 RGL) estimated from the per-material times of a partial one."""
+    ts = sorted((r["seconds"] for r in merl if "seconds" in r), reverse=True)
+    tr = [r["seconds"] for r in rgl if "seconds" in r]
+    if len(ts) < 2 or not tr:
+        return None
+    return ts[0] + 99 * float(np.median(ts[1:])) + 7 * max(tr)  # ts[0]: the one that compiled
+
+
+def plot_ratios(merl, path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rs = sorted((r["ratio"], r["material"]) for r in merl if r.get("ratio") is not None)
+    if not rs:
+        return
+    fig, ax = plt.subplots(figsize=(max(6, 0.12 * len(rs) + 2), 4))
+    x = np.arange(len(rs))
+    v = np.array([a for a, _ in rs])
+    col = np.where(v <= 1, "tab:blue", "tab:red")
+    ax.vlines(x, np.minimum(v, 1.0), np.maximum(v, 1.0), colors=col, lw=2)  # from the break-even line
+    ax.scatter(x, v, c=col, s=14, zorder=3)
+    ax.set_ylim(min(v.min(), 0.5) / 1.5, max(v.max(), 1.0) * 1.5)
+    ax.axhline(1.0, color="k", lw=0.8)
+    ax.axhline(0.5, color="k", lw=0.8, ls="--")
+    ax.set_yscale("log")
+    ax.set_ylabel("held-out E2: matfit chosen / best published")
+    if len(rs) <= 40:
+        ax.set_xticks(x)
+        ax.set_xticklabels([n for _, n in rs], rotation=90, fontsize=7)
+    else:
+        ax.set_xlabel("MERL materials, sorted")
+    ax.set_title(f"{len(rs)} MERL materials: {int((v <= 1).sum())} won by matfit, median ratio {np.median(v):.3g}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def write_summary(run):
     import jax
 
     merl = [json.loads(p.read_text()) for p in sorted(ITEMS.glob("merl_*.json"))]
-    order = {n: i for i, n in enumerate(MATERIALS)}
-    merl.sort(key=lambda r: order.get(r["material"], 99))
     rgl = [json.loads(p.read_text()) for p in sorted(ITEMS.glob("rgl_*.json"))]
-    meta = {"machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "python": platform.python_version(),
-                        "jax": jax.__version__, "x64": not args.x32},
-            "n_rows": args.n_rows, "n_cells": args.n_cells, "n_rgl": args.n_rgl, "starts": args.starts,
-            "max_steps": args.max_steps, "seed": args.seed}
-    (OUT / "fit_measured.json").write_text(json.dumps({"meta": meta, "merl": merl, "rgl": rgl}, indent=1))
-    fams_m = sorted({f for r in merl for f in r.get("fits", {})}, key=lambda f: (f not in FAMILIES, f))
-    L = ["# Fits to measured BRDFs with the E2 loss (Löw et al. 2012)", "",
-         "`experiments/fit_measured.py` (per-material JSON in `fit_measured/`, reports in `reports/<name>/`). "
-         f"{meta['machine']['cpus']} shared CPUs, JAX {meta['machine']['jax']}, float64. Each family: `fit(loss=\"e2\")`, "
-         f"{args.starts} starts (the data-driven guess and perturbed copies), at most {args.max_steps} "
-         "Levenberg-Marquardt steps" + (", and the same from a generic point; the better of the two." if args.two_inits
-                                        else "."), "",
-         "E2 per sample = mean over RGB of `(log(1 + f cos_i) - log(1 + y cos_i))^2`; the tables give means over "
-         "samples (not square roots). How the published Löw model and metric were checked: "
-         "`fit_measured_low2012.md`.", "",
-         "## MERL (surrogates of Sztrajman et al. 2021 in the MERL layout, not the measurements)", "",
-         f"**E2 (Löw)**: the metric Löw et al. fitted with (bbm `lowLog`): {args.n_rows} direction pairs with "
-         "theta_i, phi_i, theta_o uniform, phi_o = 0, weighted by sin(theta_i), values looked up in the MERL table; "
-         "the matfit families were fitted on exactly these rows and weights, and the published Löw Cook-Torrance E2 "
-         "fit is evaluated on the same rows (in-sample for matfit: see the held-out table below). **E2 (cells)**: the unweighted mean over "
-         f"{args.n_cells} random valid MERL cells (cells crowd near the mirror direction: 31 % of the valid cells have theta_h < 5 deg and 23 % "
-         "theta_d > 60 deg), for the same two fits; no fit here minimized it; for the Löw fit, 1500 cells land within 15 % of the 50 000-cell value of `fit_measured_low2012.md`. "
-         "Ratio = best matfit / Löw CT, E2 (Löw).", "",
-         "| MERL material | " + " | ".join(f"E2 (Löw) {f}" for f in fams_m) + " | E2 (Löw) Löw CT | ratio | "
-         + " | ".join(f"E2 (cells) {f}" for f in fams_m) + " | E2 (cells) Löw CT | report |",
-         "|---|" + "---|" * (2 * len(fams_m) + 4)]
+    summary = OUT / "fit_measured.json"
+    if run is not None:
+        run["machine"] = {"platform": platform.platform(), "cpus": os.cpu_count(), "jax": jax.__version__}
+    elif summary.exists():
+        run = json.loads(summary.read_text()).get("run")
+    summary.write_text(json.dumps({"run": run, "merl": merl, "rgl": rgl}, indent=1))
+    merl = [r for r in merl if r.get("chosen")]
+    run = run or {}
+    plot_ratios(merl, OUT / "fit_measured_ratio.png")
+    fams = sorted({f for r in merl + rgl for f in r.get("fits", {})})
+    ratios = np.array([r["ratio"] for r in merl if r.get("ratio") is not None])
+    wins = int((ratios <= 1).sum())
+    L = ["# Measured materials: every family on every cell, against every published fit", "",
+         "`experiments/fit_measured.py` (protocol in its docstring; one JSON per material in `fit_measured/`, "
+         "reports in `reports/<name>/`).", ""]
+    if run:
+        per = run["wall_s"] / max(run["n_merl"] + run["n_rgl"], 1)
+        L += [f"Last run: {'`--quick`, ' if run.get('quick') else ''}{run['n_merl']} MERL + {run['n_rgl']} RGL "
+              f"materials, families {', '.join(run['families'])}; **total wall time {run['wall_s']:.0f} s** "
+              f"({run['wall_s'] / 60:.1f} min, {per:.0f} s per material including compilation; skipped materials "
+              f"cost nothing) on {run['machine']['cpus']} shared CPUs, JAX {run['machine']['jax']}, float64.", ""]
+        est = estimate(merl, rgl)
+        if run.get("quick") and est:
+            L += [f"**Estimated full run** (100 MERL + 7 RGL) from this run: {est / 60:.0f} min (the longest MERL "
+                  "material's time, which includes the compilations, plus 99 times the median of the other MERL "
+                  "materials, plus 7 times the longest RGL file, which includes the RGL compilations).", ""]
+    L += ["**Split**: `Table.split(0.8, seed=0)` of every row (cell) of the table, then the valid cells of each "
+          "part: 80 % of the cells fitted, 20 % held out, the same cells for every MERL material and for the "
+          "published fits. **Fit**: `fit(train, model=family, loss=\"e2\")`, the default method, starts and steps, "
+          "on every training cell (padded to a fixed row count with weight-1e-300 rows so that one compiled solver "
+          "serves every material). **Held-out E2**: mean over held-out cells and channels of "
+          "`(log(1 + f cos_i) - log(1 + y cos_i))^2`; **Ngan L2**: RMS of `(f - y) cos_i` over the same cells "
+          "(Ngan et al. 2005). **Chosen family: lowest held-out E2** (the BIC choice is in the JSON, `chosen_bic`). "
+          "Ratio = held-out E2 of the chosen family / that of the best published fit of the material.", "",
+          "## MERL (surrogates of Sztrajman et al. 2021 in the MERL layout, not the measurements)", ""]
+    if ratios.size:
+        L += [f"matfit wins (ratio <= 1) on **{wins} of {ratios.size}** materials; median ratio "
+              f"**{np.median(ratios):.3g}** (quartiles {np.percentile(ratios, 25):.3g}, {np.percentile(ratios, 75):.3g}).",
+              "", "![ratios](fit_measured_ratio.png)", ""]
+    L += ["| material | chosen | E2 chosen | best published | E2 published | ratio | Ngan L2 chosen | Ngan L2 published "
+          "| BIC choice | flags | report |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in sorted(merl, key=lambda r: r.get("ratio", np.inf)):
+        d = r["fits"][r["chosen"]]
+        bp = r.get("published", {}).get(r.get("best_published"), {})
+        flags = ", ".join((["not converged"] if not d["converged"] else []) + ([f"{len(d['at_bound'])} at bound"]
+                                                                               if d["at_bound"] else [])) or "-"
+        L.append(f"| {r['material']} | {r['chosen']} | {_g(d['held_out']['e2'])} | {r.get('best_published')} | "
+                 f"{_g(bp.get('e2'))} | {_g(r.get('ratio'))} | {_g(d['held_out']['ngan_l2'])} | {_g(bp.get('ngan_l2'))} | "
+                 f"{r['chosen_bic']} | {flags} | {_report_link(r)} |")
+    lost = [r for r in merl if r.get("ratio", 0) > 1]
+    L += ["", "### Where matfit loses", ""]
+    L += [f"- **{r['material']}** (ratio {r['ratio']:.3g}): {_why(r)}." for r in lost] or ["None."]
+    L += ["", "### Held-out E2 per family (MERL)", "",
+          "| material | " + " | ".join(fams) + " |", "|---|" + "---|" * len(fams)]
     for r in merl:
-        fits = r.get("fits", {})
-        lo = r["low_ct"]["published"]
-        vals = [fits.get(f, {}).get("e2_low_sin") for f in fams_m]
-        okv = [v for v in vals if isinstance(v, float)]
-        ratio = min(okv) / lo["e2_low_sin"] if okv else None
-        rep = f"[{r['material']}](reports/{r['material']}/report.md)" if "report" in r else r.get("report_error", "-")
-        L.append(f"| {r['material']} | " + " | ".join(_g(v) for v in vals) + f" | {_g(lo['e2_low_sin'])} | {_g(ratio, 2)} | "
-                 + " | ".join(_g(fits.get(f, {}).get("e2_cells")) for f in fams_m)
-                 + f" | {_g(lo['e2_cells'])} | {rep} |")
-    ho = [r for r in merl if "heldout" in r]
-    if ho:
-        L += ["", f"**Held out**: the same E2 (Löw) on {ho[0]['heldout']['n']} fresh Löw-sampled rows (seed "
-              f"{ho[0]['heldout']['seed']}) that no matfit fit saw. Few samples fall near the mirror direction or at grazing angles, where the "
-              "errors are large, so E2 on a 1500-row set differs from the 54 000-sample grid value of "
-              "`fit_measured_low2012.md` by up to a factor of ~4 for the Löw fit. matfit was fitted to the rows of the "
-              "table above and the Löw fit was not, so the ratio there flatters matfit (most for the sharp "
-              "highlights that few rows sample); this table is the fair comparison.", "",
-              "| MERL material | " + " | ".join(f"E2 {f}" for f in fams_m) + " | E2 Löw CT | ratio best / Löw CT |",
-              "|---|" + "---|" * (len(fams_m) + 2)]
-        for r in ho:
-            h = r["heldout"]
-            vals = [h.get(f) for f in fams_m]
-            okv = [v for v in vals if isinstance(v, float)]
-            L.append(f"| {r['material']} | " + " | ".join(_g(v) for v in vals) + f" | {_g(h['low_ct'])} | "
-                     f"{_g(min(okv) / h['low_ct'], 2) if okv else '-'} |")
-    L += ["", "Sensitivity of the Löw CT numbers to the one ambiguous factor of the model form (D with 1/pi, i.e. a "
-          "normalized Beckmann, against the published form without it):", "",
-          "| MERL material | E2 (Löw), published form | E2 (Löw), D/pi | E2 (cells), published form | E2 (cells), D/pi |",
-          "|---|---|---|---|---|"]
-    for r in merl:
-        a, b = r["low_ct"]["published"], r["low_ct"]["D_over_pi"]
-        L.append(f"| {r['material']} | {_g(a['e2_low_sin'])} | {_g(b['e2_low_sin'])} | {_g(a['e2_cells'])} | {_g(b['e2_cells'])} |")
-    L += ["", "Fitted parameters (matfit families: `alpha` GGX width, `albedo` diffuse albedo, `eta`/`k` index; "
-          "Löw CT: kd, ks, Beckmann m, eta):", "", "| MERL material | family | parameters | E2 (Löw) | steps | s |",
-          "|---|---|---|---|---|---|"]
-    for r in merl:
-        for f in fams_m:
-            d = r.get("fits", {}).get(f)
-            if d is None:
-                continue
+        L.append(f"| {r['material']} | " + " | ".join(
+            _g(r["fits"].get(f, {}).get("held_out", {}).get("e2")) + ("*" if r["fits"].get(f, {}).get("at_bound") else "")
+            + ("!" if r["fits"].get(f, {}).get("converged") is False else "") for f in fams) + " |")
+    L += ["", "`*` a parameter ends at a bound (FitResult diagnostics), `!` not converged (FitResult.converged).", "",
+          "## RGL (measured, Dupuy & Jakob 2018)", "",
+          "| file | valid rows (train / held out) | chosen | held-out E2 | Ngan L2 | relative RMSE | CIEDE2000 "
+          "| BIC choice | flags | report |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rgl:
+        if not r.get("chosen"):
+            L.append(f"| {r['material']} | - | every fit failed | | | | | | | |")
+            continue
+        d = r["fits"][r["chosen"]]
+        flags = "; ".join((["not converged"] if not d["converged"] else []) + d["at_bound"]) or "-"
+        L.append(f"| {r['material']} | {r['n_train']} / {r['n_heldout']} | {r['chosen']} | {_g(d['held_out']['e2'])} | "
+                 f"{_g(d['held_out']['ngan_l2'])} | {_g(r.get('relative_rmse'))} | {_g(r.get('ciede2000'))} | "
+                 f"{r['chosen_bic']} | {flags} | {_report_link(r)} |")
+    L += ["", "Relative RMSE (RMSE / RMS value) and CIEDE2000 (mean appearance) are the report's "
+          "(`matfit.report.write_report` on the held-out rows)."]
+    failed = {}
+    for r in merl + rgl:
+        for f, d in r.get("fits", {}).items():
             if "error" in d:
-                L.append(f"| {r['material']} | {f} | failed: {d['error'][:80]} | - | - | - |")
-                continue
-            L.append(f"| {r['material']} | {f} | {_params(d['params'])} | {_g(d['e2_low_sin'])} | {d['steps']} | "
-                     f"{d['seconds']:.0f} |")
-        L.append(f"| {r['material']} | Löw CT | {_params(r['low_ct']['params'])} | {_g(r['low_ct']['published']['e2_low_sin'])} | - | - |")
-    fams_r = sorted({f for r in rgl for f in r.get("fits", {})}, key=lambda f: (f not in FAMILIES, f))
-    L += ["", "car_paint (`--extra`) was not run: on the shared CPUs its compilation alone did not fit the time "
-          "left.", "", "## RGL (measured, Dupuy & Jakob 2018)", "",
-          f"Fitted on the file's valid rows (a random {args.n_rgl} where there are more), equal weights; E2 on the fit "
-          "rows and on all valid rows. Report for the family of lowest E2.", "",
-          "| RGL file | valid rows (fit / all) | " + " | ".join(f"E2 {f}" for f in fams_r) + " | best | E2 best, all rows | report |",
-          "|---|---|" + "---|" * (len(fams_r) + 3)]
-    for r in rgl:
-        fits = r.get("fits", {})
-        b = r.get("best")
-        rep = (f"[{Path(r['file']).stem}](reports/{Path(r['file']).stem}/report.md)" if "report" in r
-               else r.get("report_error", "-"))
-        L.append(f"| {r['file']} | {r['n_rows_fit']} / {r['n_valid_full']} | "
-                 + " | ".join(_g(fits.get(f, {}).get("e2_fit_rows")) for f in fams_r)
-                 + f" | {b} | {_g(fits.get(b, {}).get('e2_all_rows'))} | {rep} |")
-    L += ["", "| RGL file | family | parameters | steps | s |", "|---|---|---|---|---|"]
-    for r in rgl:
-        for f in fams_r:
-            d = r.get("fits", {}).get(f)
-            if d and "params" in d:
-                L.append(f"| {r['file']} | {f} | {_params(d['params'])} | {d['steps']} | {d['seconds']:.0f} |")
+                failed.setdefault(f, []).append((r["material"], d["error"]))
+    if failed:
+        L += ["", "## Failed fits (recorded, tried again on a rerun)", ""]
+        L += [f"- **{f}** on {len(v)} material(s) ({', '.join(m for m, _ in v[:6])}{' ...' if len(v) > 6 else ''}): "
+              f"{v[0][1][:240]}" for f, v in sorted(failed.items())]
+    rep_err = [(r["material"], f, e) for r in merl + rgl for f, e in r.get("report_errors", {}).items()]
+    if rep_err:
+        L += ["", "## Reports that failed (the next family by held-out E2 was reported instead)", ""]
+        L += [f"- {m} / {f}: {e[:200]}" for m, f, e in rep_err]
     (OUT / "fit_measured.md").write_text("\n".join(L) + "\n")
     print(f"-> {OUT / 'fit_measured.md'}")
 

@@ -15,14 +15,28 @@ Where the cache lives: ``$MATFIT_CACHE_DIR`` when set, else ``$XDG_CACHE_HOME/ma
 (``~/.cache/matfit/jax``). ``MATFIT_NO_CACHE=1`` turns it off. JAX keys every entry on the
 program, the compile options, the JAX and XLA versions and the device, so a stale entry is never
 used; deleting the folder is always safe.
+
+Loading a compiled program still needs the program: JAX traces the Python function again in
+every process to find it, and for a fit's solver that tracing takes longer than loading. So the
+largest programs of a fit (:func:`persistent_jit`) are also written out as serialized StableHLO
+(:mod:`jax.export`, a flatbuffer, never a pickle) under ``exported/`` of the same folder, keyed on
+the solver's configuration, the argument shapes and dtypes, the JAX version and a hash of
+matfit's own source; a later process reads the program back instead of tracing it.
 """
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import os
 from pathlib import Path
 
-__all__ = ["cache_dir", "enable_compilation_cache"]
+import numpy as np
+
+__all__ = ["cache_dir", "enable_compilation_cache", "persistent_jit"]
+
+#: Where :func:`persistent_jit` keeps exported programs; set by :func:`enable_compilation_cache`.
+_exported_dir: Path | None = None
 
 #: Programs that compile faster than this (seconds) are not written to the cache.
 MIN_COMPILE_SECONDS = 0.05
@@ -93,4 +107,110 @@ def enable_compilation_cache(path=None) -> Path | None:
     jax.config.update("jax_compilation_cache_dir", str(where))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_SECONDS)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    global _exported_dir
+    _exported_dir = where / "exported"
     return where
+
+
+@functools.lru_cache(maxsize=1)
+def _source_hash() -> str:
+    """A hash of matfit's own source files: an exported program is only reused by the code that
+    wrote it."""
+    root = Path(__file__).resolve().parent
+    h = hashlib.sha256()
+    for f in sorted(root.rglob("*.py")):
+        h.update(str(f.relative_to(root)).encode())
+        h.update(f.read_bytes())
+    return h.hexdigest()
+
+
+def _plain(key) -> bool:
+    """True for a key made only of values whose ``repr`` is the same in every process."""
+    if key is None or isinstance(key, (bool, int, float, str, np.generic)):
+        return True
+    if isinstance(key, (tuple, list)):
+        return all(_plain(k) for k in key)
+    return False
+
+
+class _PersistentJit:
+    """The callable of :func:`persistent_jit`."""
+
+    def __init__(self, jitted, key):
+        self.jitted = jitted
+        self.key = key
+        self.loaded = {}  # signature -> jitted call of the exported program
+        self.__wrapped__ = jitted
+
+    def __call__(self, *args):
+        import jax
+
+        where = _exported_dir
+        leaves, tree = jax.tree_util.tree_flatten(args)
+        if (where is None or not _plain(self.key)
+                or not all(isinstance(x, (jax.Array, np.ndarray)) and not isinstance(x, jax.core.Tracer)
+                           for x in leaves)):
+            return self.jitted(*args)
+        sig = (str(tree), tuple((x.shape, str(jax.dtypes.canonicalize_dtype(x.dtype))) for x in leaves))
+        call = self.loaded.get(sig)
+        if call is None:
+            call = self._load_or_export(where, sig, args)
+            self.loaded[sig] = call
+        return call(*args)
+
+    def _load_or_export(self, where, sig, args):
+        import jax
+        from jax import export
+
+        text = repr((self.key, sig, jax.__version__, jax.config.jax_enable_x64, jax.default_backend(),
+                     jax.device_count(), _source_hash()))
+        path = where / (hashlib.sha256(text.encode()).hexdigest()[:32] + ".jaxexport")
+        try:
+            exp = export.deserialize(bytearray(path.read_bytes()))
+        except Exception:  # noqa: BLE001 - missing, truncated or foreign: trace and write it again
+            try:
+                exp = export.export(self.jitted)(*args)
+                blob = exp.serialize()
+            except Exception:  # noqa: BLE001 - a program jax.export cannot serialize: plain jit
+                return self.jitted
+            try:
+                where.mkdir(parents=True, exist_ok=True)
+                tmp = path.with_suffix(f".{os.getpid()}.tmp")
+                tmp.write_bytes(blob)
+                os.replace(tmp, path)
+            except OSError:
+                pass
+        return jax.jit(exp.call)
+
+
+def persistent_jit(jitted, key):
+    """``jitted`` (a :func:`jax.jit` function), whose traced program is kept across processes.
+
+    With the compilation cache on (:func:`enable_compilation_cache`) the first call for each
+    argument signature writes the traced program (:func:`jax.export.export`) to the cache folder,
+    and later processes read it instead of tracing ``jitted`` again; compiled code then comes
+    from JAX's persistent cache as before. With the cache off, under a JAX transformation, for
+    a ``key`` whose ``repr`` is not the same in every process, or for a program that
+    :mod:`jax.export` cannot serialize, it is ``jitted`` itself.
+
+    Parameters
+    ----------
+    jitted : callable
+        A :func:`jax.jit` function of arrays (pytrees of arrays) only.
+    key : tuple
+        Everything ``jitted``'s program depends on besides its arguments' shapes and dtypes
+        (strings, numbers, tuples of them): the configuration it was built for.
+
+    Returns
+    -------
+    callable
+
+    Examples
+    --------
+    >>> import jax, jax.numpy as jnp
+    >>> from matfit.cache import persistent_jit
+    >>> f = persistent_jit(jax.jit(lambda x: 2 * x), ("double", 1))
+    >>> f(jnp.arange(3.0)).tolist()
+    [0.0, 2.0, 4.0]
+    """
+    return _PersistentJit(jitted, key)

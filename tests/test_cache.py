@@ -27,8 +27,9 @@ SCRIPT = textwrap.dedent("""
     wi = rng.normal(size=(64, 3)); wi[:, 2] = abs(wi[:, 2]); wi /= np.linalg.norm(wi, axis=1, keepdims=True)
     wo = np.tile([0.0, 0.0, 1.0], (64, 1))
     r = fit(Table(wo=wo, wi=wi, values=np.full((64, 3), 0.2), channels="rgb"), model="lambert", starts=1)
+    exported = sorted((p.name, p.stat().st_mtime_ns) for p in (where / "exported").glob("*")) if where else []
     print("RESULT " + json.dumps({**counts, "dir": None if where is None else str(where),
-                                  "albedo": float(r.params["albedo"][0])}))
+                                  "albedo": float(r.params["albedo"][0]), "exported": exported}))
 """)
 
 
@@ -48,5 +49,35 @@ def test_second_process_loads_compiled_programs(tmp_path):
     second = _run(env)
     assert first["hits"] == 0 and second["hits"] > 0  # programs loaded from the cache
     assert second["albedo"] == first["albedo"]  # the loaded programs compute the same fit
+    # the solver's traced program was written once and read back, not traced and written again
+    assert first["exported"] and second["exported"] == first["exported"]
     off = _run({**env, "MATFIT_NO_CACHE": "1"})
     assert off["dir"] is None and off["hits"] == 0 and off["compiles"] > 0
+
+
+def test_persistent_jit_reads_the_exported_program(tmp_path, monkeypatch):
+    import jax
+    import jax.numpy as jnp
+
+    import matfit.cache as cache
+
+    monkeypatch.setattr(cache, "_exported_dir", tmp_path / "exported")
+    x = jnp.arange(4.0)
+    first = cache.persistent_jit(jax.jit(lambda v: 2 * v), ("test", 1))
+    assert first(x).tolist() == [0.0, 2.0, 4.0, 6.0]
+    (written,) = list((tmp_path / "exported").iterdir())
+    # a new wrapper of the same key (a later process) runs the program on disk: the function it
+    # was given is not traced
+    again = cache.persistent_jit(jax.jit(lambda v: 3 * v), ("test", 1))
+    assert again(x).tolist() == [0.0, 2.0, 4.0, 6.0]
+    # another argument shape or another key is another program
+    assert again(jnp.arange(2.0)).tolist() == [0.0, 3.0]
+    assert cache.persistent_jit(jax.jit(lambda v: 3 * v), ("test", 2))(x).tolist() == [0.0, 3.0, 6.0, 9.0]
+    # a damaged file is traced and written again, never trusted
+    written.write_bytes(b"not a program")
+    assert cache.persistent_jit(jax.jit(lambda v: 5 * v), ("test", 1))(x).tolist() == [0.0, 5.0, 10.0, 15.0]
+    assert written.read_bytes() != b"not a program"
+    # under a transformation, and with the cache off, it is the function it was given
+    assert jax.grad(lambda v: cache.persistent_jit(jax.jit(lambda u: 7 * u), ("test", 1))(v).sum())(x).tolist() == [7.0] * 4
+    monkeypatch.setattr(cache, "_exported_dir", None)
+    assert cache.persistent_jit(jax.jit(lambda v: 11 * v), ("test", 1))(x).tolist() == [0.0, 11.0, 22.0, 33.0]

@@ -1,5 +1,7 @@
 """Multi-start: start 0 is the data-driven guess, the others are the screened candidates with the
-lowest objective (matfit.fitting.fit.fit_starts), the same in fit() and fit_batch()."""
+lowest objective (matfit.fitting.fit.fit_starts), the same in fit() and fit_batch(); one candidate
+is the guess with the widths of the distribution extracted from the retro-reflection
+(matfit.fitting._starts.ndf_widths, Dupuy et al. 2015)."""
 
 import jax
 import jax.numpy as jnp
@@ -8,18 +10,34 @@ import pytest
 
 from data_synth import geometry
 from matfit import Table
-from matfit.fitting import Parametrization, fit_batch
-from matfit.fitting._starts import candidates
+from matfit.fitting import Parametrization, fit, fit_batch
+import matfit.fitting._starts as starts_module
+from matfit.fitting._starts import candidates, initial_guesses, ndf_widths
 from matfit.fitting.fit import SCREEN_PER_START, fit_starts, initial_guess, residual_fn
-from matfit.models import RoughConductor
+from matfit.models import Plastic, RoughConductor
+
+
+ALPHA, ETA, K = 0.25, [0.3, 1.2, 2.5], [3.0, 5.0, 2.0]
+
+
+def _conductor_table(grid, alpha=ALPHA, seed=0):
+    wo, wi, ok, _ = geometry.merl_grid(*grid)
+    wo, wi = np.asarray(wo)[ok], np.asarray(wi)[ok]
+    f = np.asarray(RoughConductor(alpha, ETA, K).eval(wo, wi))
+    return Table(wo=wo, wi=wi, values=f * (1 + 0.01 * np.random.default_rng(seed).normal(size=f.shape)))
 
 
 @pytest.fixture(scope="module")
 def table():
-    wo, wi, ok, _ = geometry.merl_grid(6, 8, 8)
-    wo, wi = np.asarray(wo)[ok], np.asarray(wi)[ok]
-    f = np.asarray(RoughConductor(0.25, [0.3, 1.2, 2.5], [3.0, 5.0, 2.0]).eval(wo, wi))
-    return Table(wo=wo, wi=wi, values=f * (1 + 0.01 * np.random.default_rng(0).normal(size=f.shape)))
+    """A coarse MERL-like grid: its first theta_d cell (5.6 deg) is too far from backscattering
+    for the extraction (no ndf candidate)."""
+    return _conductor_table((6, 8, 8))
+
+
+@pytest.fixture(scope="module")
+def retro_table():
+    """A grid with retro-reflection cells (theta_d 1.875 deg), the extraction's input."""
+    return _conductor_table((24, 24, 8))
 
 
 def _objective(par, table):
@@ -34,7 +52,9 @@ def _objective(par, table):
     return one, arrays
 
 
-def test_starts_are_guess_then_best_candidates(table, x64):
+@pytest.mark.parametrize("which", ["table", "retro_table"])
+def test_starts_are_guess_then_best_candidates(which, request, x64):
+    table = request.getfixturevalue(which)
     par = Parametrization("conductor", 3)
     one, arrays = _objective(par, table)
     fn = residual_fn(par, "l2", None, 1.0)
@@ -44,13 +64,25 @@ def test_starts_are_guess_then_best_candidates(table, x64):
     assert z0s.shape == (n, par.size)
     guess = np.asarray(par.z_from_theta(initial_guess(table, par)))
     np.testing.assert_allclose(z0s[0], guess)
-    cand = np.asarray(candidates(par, jnp.asarray(guess)[None], n - 1, 7))[0]
-    assert cand.shape == (SCREEN_PER_START * (n - 1), par.size)
+    # the extracted widths' start is one more candidate, in a slot that is always there (unused: never picked)
+    widths = ndf_widths(table)
+    assert (widths is None) == (which == "table")
+    extra = None
+    if widths is not None:
+        g = {k: v[0] for k, v in initial_guesses([table], par, widths=widths).items()}
+        extra = np.asarray(par.z_from_theta(g))[None, None]
+    cand = np.asarray(candidates(par, jnp.asarray(guess)[None], n - 1, 7, extra))[0]
+    assert cand.shape == (SCREEN_PER_START * (n - 1) + 1, par.size)
+    plain = np.asarray(candidates(par, jnp.asarray(guess)[None], n - 1, 7))[0]
+    np.testing.assert_array_equal(cand[:-1], plain[:-1])
+    np.testing.assert_array_equal(cand[-1], guess if extra is None else extra[0, 0])
     values = np.array([one(c) for c in cand])
+    if extra is None:
+        values[-1] = np.inf
     best = cand[np.argsort(values)[: n - 1]]
     np.testing.assert_allclose(z0s[1:], best, rtol=1e-12)
     # half the candidates spread over the parameter box: every bounded parameter's range is visited
-    theta = np.array([np.asarray(par.theta_vector(jnp.asarray(c))) for c in cand[len(cand) - len(cand) // 2:]])
+    theta = np.array([np.asarray(par.theta_vector(jnp.asarray(c))) for c in cand[(len(cand) - 1) // 2:-1]])  # the spread half (before the extra slot)
     lo, hi = par.lower_upper()
     assert np.all(theta.min(0) < lo + 0.35 * (hi - lo)) and np.all(theta.max(0) > lo + 0.65 * (hi - lo))
 
@@ -91,3 +123,84 @@ def test_initial_guesses_batch_equals_one_by_one(table, family):
         assert set(one) == set(batch)
         for k in one:
             np.testing.assert_allclose(batch[k][i], one[k], rtol=1e-12)
+
+
+# ------------------------------------------------------------------------------------------------
+# The data-driven microfacet start (ndf_widths)
+# ------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("alpha", [0.08, 0.25])
+def test_ndf_widths_recover_the_width_of_the_table(alpha, x64):
+    """The extracted GGX width of a GGX conductor table is its alpha (within 3 %), where the
+    half-width guess is only a rough estimate."""
+    w = ndf_widths(_conductor_table((24, 24, 8), alpha))
+    assert w["alpha"] == pytest.approx(alpha, rel=0.03)
+    assert w["alpha_base"] == w["alpha_coat"] == w["alpha"]  # one lobe
+
+
+def test_ndf_widths_bad_tables_give_none(table, x64):
+    assert ndf_widths(table) is None  # no rows near backscattering
+    black = Table(wo=table.wo, wi=table.wi, values=np.zeros_like(table.values))
+    assert ndf_widths(black) is None
+
+
+def test_ndf_candidate_only_where_the_family_reads_widths(retro_table, x64, monkeypatch):
+    """The candidate carries the extracted width for a family with a width (its start differs
+    from the guess only there, for plastic); a family without one (lambert) keeps the plain pool."""
+    seen = []
+    real = starts_module.candidates
+
+    def spy(par, base, n_extra, seed, extra=None):
+        seen.append(extra)
+        return real(par, base, n_extra, seed, extra)
+
+    monkeypatch.setattr(starts_module, "candidates", spy)
+    for family, expect in (("plastic", True), ("lambert", False)):
+        par = Parametrization(family, 3)
+        fn = residual_fn(par, "l2", None, 1.0)
+        obj = jax.jit(jax.vmap(lambda z, a: 0.5 * jnp.sum(fn(z, a) ** 2), in_axes=(0, None)))
+        _, arrays = _objective(par, retro_table)
+        seen.clear()
+        fit_starts(retro_table, par, 3, 0, obj, arrays)
+        assert (seen[0] is not None) == expect
+        if expect:
+            theta = np.asarray(par.theta_vector(jnp.asarray(seen[0][0, 0])))
+            guess = np.asarray(par.theta_vector(par.z_from_theta(initial_guess(retro_table, par))))
+            i = par.labels.index("alpha")
+            differs = np.flatnonzero(~np.isclose(theta, guess, rtol=1e-9))
+            assert differs.tolist() == [i]
+            g = initial_guess(retro_table, par)
+            w = ndf_widths(retro_table, np.asarray(g["albedo"]) / np.pi)
+            assert theta[i] == pytest.approx(w["alpha"], rel=1e-9)
+    # switched off: no candidate
+    monkeypatch.setattr(starts_module, "NDF_CANDIDATE", False)
+    seen.clear()
+    par = Parametrization("plastic", 3)
+    fn = residual_fn(par, "l2", None, 1.0)
+    obj = jax.jit(jax.vmap(lambda z, a: 0.5 * jnp.sum(fn(z, a) ** 2), in_axes=(0, None)))
+    fit_starts(retro_table, par, 3, 0, obj, _objective(par, retro_table)[1])
+    assert seen == [None]
+
+
+def test_fit_with_the_ndf_candidate_compiles_once(x64):
+    """Two plastic fits of tables of one shape with retro-reflection rows (so the candidate is
+    built): the second compiles nothing. (Plastic: the conductor families' refinement compiles
+    per table whatever the starts, see _conductor_guess.)"""
+    from test_compile_count import count_compilations
+
+    wo, wi, ok, _ = geometry.merl_grid(24, 24, 8)
+    wo, wi = np.asarray(wo)[ok], np.asarray(wi)[ok]
+    t1, t2 = (Table(wo=wo, wi=wi, values=np.asarray(Plastic([0.5, 0.3, 0.2], a, 1.5).eval(wo, wi))) for a in (0.1, 0.3))
+    assert ndf_widths(t1) is not None and ndf_widths(t2) is not None
+    r1 = fit(t1, model="plastic", starts=3, max_steps=24)
+    with count_compilations() as seen:
+        r2 = fit(t2, model="plastic", starts=3, max_steps=24)
+    assert seen == [], f"recompiled: {seen}"
+    assert float(r1.params["alpha"]) == pytest.approx(0.1, rel=0.05)
+    assert float(r2.params["alpha"]) == pytest.approx(0.3, rel=0.05)
+
+
+def test_widths_entries_are_checked(table):
+    from matfit.errors import ParameterError
+
+    with pytest.raises(ParameterError, match="widths entry 'eta'"):
+        initial_guesses([table], Parametrization("conductor", 3), widths={"eta": 1.0})

@@ -26,7 +26,7 @@ import numpy_ref as R  # noqa: E402
 
 from matfit import Table  # noqa: E402
 from matfit.errors import ParameterError  # noqa: E402
-from matfit.microfacet import (GGX, TabulatedNDF, back_facing_area, extract_ndf, ggx_ndf, interpolate_ndf,  # noqa: E402
+from matfit.microfacet import (GGX, TabulatedNDF, back_facing_area, extract_ndf, interpolate_ndf,  # noqa: E402
                                ndf_grid, ndf_start, projected_mass)
 from matfit.models import RoughConductor, TabulatedMicrofacet  # noqa: E402
 
@@ -35,6 +35,13 @@ TOOL = SHARED / "tools" / "merl_surrogate.py"
 WEIGHTS = SHARED / "data" / "merl_nbrdf" / "weights.npz"
 
 ETA, K = np.array([0.2, 0.9, 1.5]), np.array([3.0, 2.5, 1.8])
+
+
+def ggx_d(theta, alpha):
+    """GGX's D at angle theta from the normal, written out in numpy (the reference of the table
+    tests): alpha^2 / (pi (alpha^2 cos^2 + sin^2)^2), finite at pi/2."""
+    theta, alpha = np.asarray(theta, np.float64), np.asarray(alpha, np.float64)
+    return alpha ** 2 / (np.pi * (alpha ** 2 * np.cos(theta) ** 2 + np.sin(theta) ** 2) ** 2)
 
 
 def _dirs(theta, phi=0.0):
@@ -100,7 +107,7 @@ def test_cell_lookup_matches_numpy_interpolation(grid, x64, rng):
     numpy interpolation of the same table, on the default grid (cell computed) and on any other
     (cell searched)."""
     theta = ndf_grid(200) if grid == "sqrt" else np.linspace(0.0, np.pi / 2, 150)
-    d = ggx_ndf(theta, 0.2) + 0.2 * np.exp(-((theta - 0.9) / 0.05) ** 2)
+    d = ggx_d(theta, 0.2) + 0.2 * np.exp(-((theta - 0.9) / 0.05) ** 2)
     d[40:43] = 0.0  # linear cells beside the log-linear ones
     tab = TabulatedNDF(theta, d)
     assert tab.sqrt_grid == (grid == "sqrt")
@@ -115,7 +122,7 @@ def test_back_facing_area_against_brute_force_quadrature():
     """B(mu) (closed-form azimuthal integral) against a 2-D midpoint rule of max(0, -v.m) D, for a
     distribution with two lobes and a zero node (the linear cells)."""
     theta = ndf_grid(64)
-    d = 0.7 * ggx_ndf(theta, 0.2) + 0.3 * ggx_ndf(theta, 0.8)
+    d = 0.7 * ggx_d(theta, 0.2) + 0.3 * ggx_d(theta, 0.8)
     d[20:24] = 0.0
     d /= projected_mass(theta, d)
     mus = np.array([1.0, 0.8, 0.4, 0.1, 0.0])
@@ -139,7 +146,7 @@ def test_back_facing_area_against_brute_force_quadrature():
 def test_normalization_and_dcos_pdf_integrate_to_one(x64):
     """int D cos d omega = 1 (a fine quadrature of the interpolated table), for a scaled input."""
     theta = ndf_grid(100)
-    tab = TabulatedNDF(theta, 7.0 * ggx_ndf(theta, 0.1))
+    tab = TabulatedNDF(theta, 7.0 * ggx_d(theta, 0.1))
     wi, w = R.upper_hemisphere_rule(200)
     # Gauss-Legendre in theta on every cell of the table (the interpolant is smooth inside a cell)
     x, gw = np.polynomial.legendre.leggauss(8)
@@ -312,7 +319,7 @@ def test_grazing_and_narrow(x64):
 
 def test_bad_input():
     t = ndf_grid(16)
-    d = ggx_ndf(t, 0.3)
+    d = ggx_d(t, 0.3)
     with pytest.raises(ParameterError, match="d must be >= 0"):
         TabulatedNDF(t, -d)
     with pytest.raises(ParameterError, match="increase strictly"):
@@ -396,7 +403,7 @@ def test_extraction_power_iteration_and_two_lobes(x64):
 
     for mix in ((1.0, 0.15, 0.15), (0.6, 0.05, 0.4)):
         s_, a1, a2 = mix
-        d = s_ * ggx_ndf(t, a1) + (1 - s_) * ggx_ndf(t, a2)
+        d = s_ * ggx_d(t, a1) + (1 - s_) * ggx_d(t, a2)
         sigma = np.cos(t) * (s_ * (1 + lam(a1)) + (1 - s_) * (1 + lam(a2)))
         f = 0.8 * d * (np.cos(t) / sigma) / (4 * np.cos(t) ** 2)
         st = ndf_start(Table(wo=w, wi=w, values=f[:, None], channels="mono"), masking="smith_g1")
@@ -488,3 +495,83 @@ def test_merl_surrogate_alpha_is_sensible(surrogate):
     assert s["lobes"] == 2
     assert 0.5 < s["two_lobe"]["alpha"][0] / _half_width_alpha(f) < 2.0
     assert 1e-3 < s["alpha"] < 0.05
+
+
+# ------------------------------------------------------------------------------------------------
+# The model file and the renderer exports
+# ------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("masking", ["separable", "height_correlated"])
+def test_model_file_round_trip(masking, x64, rng, tmp_path):
+    """save -> load rebuilds the same model: eval, pdf and sampling equal to rounding, against
+    the reference conductor too (the loaded tables are not a copy of something else)."""
+    from matfit.export import load_model, save_model
+
+    model = model_of(ref_table("ggx", 0.3), masking=masking)
+    save_model(tmp_path / "m.json", model, family="tabulated")
+    back = load_model(tmp_path / "m.json")
+    assert type(back) is TabulatedMicrofacet and back.masking == masking and back.ndf.sqrt_grid
+    wo, wi = R.random_directions(rng, 400, "upper", 0.01), R.random_directions(rng, 400, "upper", 0.01)
+    u = jnp.asarray(rng.random((400, 3)))
+    f0, f1 = (np.asarray(_eval(m, jnp.asarray(wo), jnp.asarray(wi))) for m in (model, back))
+    np.testing.assert_allclose(f1, f0, rtol=1e-12, atol=0)
+    (p0, s0), (p1, s1) = (_pdf_sample(m, jnp.asarray(wo), jnp.asarray(wi), u) for m in (model, back))
+    np.testing.assert_allclose(np.asarray(p1), np.asarray(p0), rtol=1e-12)
+    for a, b in zip(s0, s1):
+        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(f1, R.conductor_eval(wo, wi, R.Dist("ggx", 0.3), ETA, K, masking), rtol=5e-4)
+
+
+def test_model_file_rejects_a_bad_table(x64, tmp_path):
+    import json
+
+    from matfit.errors import DataFormatError
+    from matfit.export import load_model, save_model
+
+    save_model(tmp_path / "m.json", model_of(ref_table("ggx", 0.3, n=32)))
+    doc = json.loads((tmp_path / "m.json").read_text())
+    assert doc["model"]["type"] == "TabulatedMicrofacet" and doc["model"]["ndf"]["type"] == "TabulatedNDF"
+    for change, match in ((lambda nd: nd["d"].__setitem__(3, -1.0), "d must be >= 0"),
+                          (lambda nd: nd.pop("theta"), "missing \\['theta'\\]"),
+                          (lambda nd: nd.__setitem__("n_lambda", 2.5), "n_lambda: expected an integer"),
+                          (lambda nd: nd.__setitem__("d", "many"), "expected a list of numbers")):
+        bad = json.loads(json.dumps(doc))
+        change(bad["model"]["ndf"])
+        (tmp_path / "bad.json").write_text(json.dumps(bad))
+        with pytest.raises(DataFormatError, match=match):
+            load_model(tmp_path / "bad.json")
+
+
+@pytest.mark.parametrize("kind", ["ggx", "beckmann"])
+def test_nearest_analytic_width(kind, x64):
+    """A table of numpy_ref's D of one family: that family's width, misfit ~0, the other family
+    misfits more."""
+    from matfit.microfacet import nearest_analytic
+
+    tab = ref_table(kind, 0.3)
+    other = "beckmann" if kind == "ggx" else "ggx"
+    near, far = nearest_analytic(tab, kind), nearest_analytic(tab, other)
+    assert near["alpha"] == pytest.approx(0.3, rel=2e-3) and near["misfit"] < 5e-3
+    assert far["misfit"] > 10 * near["misfit"]
+    with pytest.raises(ParameterError, match="distribution must be one of"):
+        nearest_analytic(tab, "phong")
+    with pytest.raises(ParameterError, match="must be a matfit.microfacet.TabulatedNDF"):
+        nearest_analytic(GGX(0.3))
+
+
+@pytest.mark.parametrize("to", ["mitsuba", "mitsuba-xml", "pbrt"])
+def test_renderer_export_names_the_model_and_the_nearest_analytic_fit(to, x64):
+    """Mitsuba 3 and pbrt-v4 have no tabulated microfacet distribution: a ParameterError naming
+    TabulatedMicrofacet and the nearest analytic conductor (the table's own width), also for a
+    tabulated lobe inside a Blend."""
+    from matfit.export import export
+    from matfit.models import Blend, Lambert
+
+    tab = model_of(ref_table("beckmann", 0.15), masking="height_correlated")
+    for model in (tab, Blend(tab, Lambert([0.2, 0.2, 0.2]), 0.5)):
+        with pytest.raises(ParameterError) as err:
+            export(model, to)
+        msg = str(err.value)
+        assert "TabulatedMicrofacet" in msg and "RoughConductor(alpha=" in msg
+        alpha = float(msg.split("RoughConductor(alpha=")[1].split(",")[0])
+        assert alpha == pytest.approx(0.15, rel=5e-3)
+        assert "distribution='beckmann'" in msg and "masking='height_correlated'" in msg

@@ -8,7 +8,7 @@ from ._fidelity import fit_target, measure
 from ._gltf import to_gltf
 from ._materialx import to_materialx
 from ._pbrt import to_pbrt
-from ._result import ExportResult, ParamMapping, check_model
+from ._result import ExportResult, ParamMapping, check_model, reject_tabulated
 
 
 def _approx(owner, model, plan, supported):
@@ -25,8 +25,10 @@ def to_mitsuba(model) -> ExportResult:
     ----------
     model : matfit.models.AbstractBSDF
         Lambert, the conductors, the dielectrics, Plastic and Blend map to Mitsuba's plugins
-        one to one; Layered and the other models without a plugin are written as a
-        ``blendbsdf`` of two ``roughconductor`` lobes fitted to them over the hemisphere.
+        one to one; a MultiLobe of conductor or dielectric lobes (separable masking, albedo
+        plus weights at most 1) maps exactly to nested ``blendbsdf`` (a MultiLobe with Schlick
+        lobes has no Mitsuba form and raises); Layered over a RoughConductor is written as a
+        ``blendbsdf`` of two ``roughconductor`` lobes fitted to it over the hemisphere.
 
     Returns
     -------
@@ -36,7 +38,8 @@ def to_mitsuba(model) -> ExportResult:
     Raises
     ------
     ParameterError
-        ``model`` is not a matfit model, or has neither a plugin nor an approximation.
+        ``model`` is not a matfit model, or has neither a plugin nor an approximation (a
+        :class:`~matfit.models.TabulatedMicrofacet`: the message names the nearest analytic model).
 
     Examples
     --------
@@ -46,6 +49,7 @@ def to_mitsuba(model) -> ExportResult:
     ('roughconductor', 0.2, True)
     """
     check_model("to_mitsuba", model)
+    reject_tabulated("to_mitsuba", model, "Mitsuba 3")
     got = _mitsuba.exact_mitsuba(model)
     fid, target, notes = None, model, []
     if got is None:

@@ -12,6 +12,11 @@ SmoothDielectric   ``dielectric`` (int_ior = eta, ext_ior = 1)                  
 Plastic            ``plastic`` / ``roughplastic`` (diffuse_reflectance, alpha,  approximate: Mitsuba's own
                    int_ior, nonlinear = true)                                   internal-reflectance terms
 Blend              ``blendbsdf`` (weight; weight 0 is the first model)          exact when both parts are
+MultiLobe          nested ``blendbsdf`` of ``diffuse`` and ``roughconductor``   exact for conductor and
+                   lobes (``specular_reflectance`` = the lobe's weight over     dielectric (k = 0, eta > 1)
+                   its blend probability)                                       lobes, GGX, separable masking,
+                                                                                albedo + sum of weights <= 1;
+                                                                                Schlick lobes: none
 Layered, others    fitted: ``blendbsdf`` of two ``roughconductor`` lobes         approximate (fitted)
 =================  ===========================================================  ==========
 
@@ -26,7 +31,7 @@ import functools
 
 import numpy as np
 
-from ..models import (Blend, Lambert, Layered, Plastic, RoughConductor, RoughDielectric, SmoothConductor,
+from ..models import (Blend, Lambert, Layered, MultiLobe, Plastic, RoughConductor, RoughDielectric, SmoothConductor,
                       SmoothDielectric)
 from ._model_file import plain_numbers
 from ._result import ParamMapping, rgb
@@ -119,7 +124,67 @@ def exact_mitsuba(model, where=""):
         w = _num(model.weight)
         d = {"type": "blendbsdf", "weight": w, "bsdf_0": a[0], "bsdf_1": b[0]}
         return d, a[1] + b[1] + [ParamMapping(f"{where}weight", w, "weight", True)]
+    if isinstance(model, MultiLobe):
+        return _multi_lobe(model, where)
     return None
+
+
+def _multi_lobe(model, where):
+    """A :class:`~matfit.models.MultiLobe` as nested ``blendbsdf``: the sum ``sum_i c_i f_i`` of
+    its components (the diffuse base, the lobes with their weights ``c_i`` per channel) is the
+    convex combination ``sum_i p_i (c_i / p_i) f_i`` with ``p_i`` proportional to ``max c_i``; the
+    scales ``c_i / p_i`` (at most ``S = sum_i max c_i``) go into the diffuse reflectance and the
+    lobes' ``specular_reflectance``. Exact only where every lobe is a Mitsuba ``roughconductor``
+    (a conductor, or a dielectric of index > 1 as a conductor with k = 0) and ``S <= 1`` (a
+    reflectance above 1 is not a valid Mitsuba reflectance); else None."""
+    if np.asarray(model.diffuse).ndim > 1:
+        return None  # one value per pixel
+    parts = []  # (mitsuba model, its weight c per channel, where, kind)
+    albedo = np.asarray(model.diffuse, float)
+    if np.any(albedo > 0):
+        parts.append((Lambert(np.broadcast_to(albedo, (model.channels,))), albedo, "diffuse.", "lambert"))
+    for i, lobe in enumerate(model.lobes):
+        w = np.asarray(lobe.weight, float)
+        if lobe.fresnel == "schlick" or w.ndim > 1:
+            return None
+        if lobe.fresnel == "dielectric" and not np.all(np.asarray(lobe.eta) > 1):
+            return None
+        k = lobe.k if lobe.fresnel == "conductor" else np.zeros_like(np.asarray(lobe.eta))
+        if np.any(w > 0):
+            parts.append((RoughConductor(lobe.alpha, lobe.eta, k, distribution=lobe.distribution, masking=lobe.masking,
+                                         alpha_y=lobe.alpha_y), w, f"lobes[{i}].", lobe.fresnel))
+    peaks = np.array([float(np.max(c)) for _, c, _, _ in parts])
+    total = float(peaks.sum())
+    if not parts or total > 1.0:
+        return None
+    probs = peaks / total
+    dicts, mapping = [], []
+    for (m, c, name, kind), p in zip(parts, probs):
+        got = exact_mitsuba(m, where + name)
+        if got is None:
+            return None
+        d, mp = got
+        scale = c / p
+        if isinstance(m, Lambert):
+            d["reflectance"] = _colour(np.broadcast_to(scale, (model.channels,)))
+            mp = [ParamMapping(f"{where}{name}reflectance", _num(scale), "albedo / blend probability", True)]
+        else:
+            d["specular_reflectance"] = _colour(scale)
+            mp.append(ParamMapping(f"{where}{name}specular_reflectance", _num(scale), "weight / blend probability", True))
+            if kind == "dielectric":  # the dielectric Fresnel of eta > 1 is the conductor's of k = 0
+                mp = [ParamMapping(x.target, x.value, "0 (dielectric lobe)", True) if x.target.endswith(".k") else x
+                      for x in mp]
+        dicts.append(d)
+        mapping += mp
+    # nested blends: bsdf_0 is the first component, bsdf_1 the blend of the others
+    out, rest = dicts[-1], probs[-1]
+    for d, p in zip(dicts[-2::-1], probs[-2::-1]):
+        w = float(rest / (rest + p))
+        out = {"type": "blendbsdf", "weight": w, "bsdf_0": d, "bsdf_1": out}
+        rest = rest + p
+    mapping.append(ParamMapping(f"{where}weight", [plain_numbers(p) for p in probs], "blend probabilities "
+                                "max(c_i) / sum max(c_j) of the components", True))
+    return out, mapping
 
 
 def _build_coated(p, C):
@@ -182,4 +247,5 @@ def to_xml(d, indent=1, name=None):
 
 #: What the Mitsuba exporter accepts (named in its error message).
 SUPPORTED = ("Lambert, RoughConductor and RoughDielectric (GGX, Beckmann, separable masking), SmoothConductor, "
-             "SmoothDielectric, Plastic, Blend of those, Layered over a RoughConductor (fitted)")
+             "SmoothDielectric, Plastic, Blend of those, Layered over a RoughConductor (fitted), MultiLobe of "
+             "conductor or dielectric lobes (separable masking, albedo + sum of weights <= 1; no Schlick lobes)")

@@ -3,8 +3,12 @@
 
 The document is ``{"matfit_model": 1, "model": {"type": <class name>, <field>: <value>, ...}}``:
 array fields as (nested) lists of numbers, static fields as they are, nested models as nested
-objects. It holds numbers and names only (no pickles) and is read back by rebuilding each
-class from its fields, so every value is checked against the class's declared fields.
+objects, a sequence of nested models (:class:`~matfit.models.MultiLobe`'s ``lobes``) as a list
+of them. It holds numbers and names only (no pickles) and is read back by rebuilding each
+class from its fields, so every value is checked against the class's declared fields. A
+tabulated distribution of normals (:class:`~matfit.microfacet.TabulatedNDF`, the ``ndf`` of a
+:class:`~matfit.models.TabulatedMicrofacet`) is written as ``{"type": "TabulatedNDF", "theta",
+"d", "n_lambda"}``, its constructor's arguments, and rebuilt (and checked) by its constructor.
 """
 
 from __future__ import annotations
@@ -18,13 +22,16 @@ import numpy as np
 
 from ..errors import DataFormatError, ParameterError
 from .. import models as _models
+from ..microfacet import TabulatedNDF
 
 FORMAT_VERSION = 1
 
 #: The classes a model document may name.
 MODEL_CLASSES = {name: getattr(_models, name) for name in (
     "Lambert", "RoughConductor", "SmoothConductor", "RoughDielectric", "SmoothDielectric", "Plastic", "Layered",
-    "Blend", "StochasticLayered", "GltfPBR", "DiffuseSpecular")}
+    "Blend", "StochasticLayered", "GltfPBR", "DiffuseSpecular", "TabulatedMicrofacet", "MultiLobe", "SpecularLobe")}
+#: The fields of a tabulated distribution's description (:class:`~matfit.microfacet.TabulatedNDF`'s arguments).
+NDF_FIELDS = ("theta", "d", "n_lambda")
 
 
 def plain_numbers(a):
@@ -86,12 +93,93 @@ def describe_model(model) -> dict:
             out[f.name] = v
         elif isinstance(v, _models.AbstractBSDF):
             out[f.name] = describe_model(v)
+        elif isinstance(v, (tuple, list)) and v and all(isinstance(x, _models.AbstractBSDF) for x in v):
+            out[f.name] = [describe_model(x) for x in v]  # a sequence of models (MultiLobe's lobes)
+        elif isinstance(v, TabulatedNDF):
+            out[f.name] = describe_ndf(v)
         else:
             a = np.asarray(v)
             if not np.all(np.isfinite(a)):
                 raise ParameterError(f"describe_model: {cls.__name__}.{f.name} has non-finite values {a.tolist()}")
             out[f.name] = plain_numbers(a)
     return out
+
+
+def describe_ndf(ndf) -> dict:
+    r"""A tabulated distribution as a JSON-ready dict of its constructor's arguments: the node
+    angles (from the stored :math:`\sin^2\theta`), the normalized :math:`D` and the size of the
+    masking table.
+
+    Parameters
+    ----------
+    ndf : matfit.microfacet.TabulatedNDF
+        A distribution with concrete tables.
+
+    Returns
+    -------
+    dict
+        ``{"type": "TabulatedNDF", "theta": [...], "d": [...], "n_lambda": int}``.
+
+    Examples
+    --------
+    >>> from matfit.microfacet import GGX, TabulatedNDF
+    >>> d = describe_ndf(TabulatedNDF.from_distribution(GGX(0.3), n=16, n_lambda=32))
+    >>> d["type"], len(d["theta"]), len(d["d"]), d["n_lambda"]
+    ('TabulatedNDF', 16, 16, 32)
+    """
+    x = np.clip(np.asarray(ndf.x_nodes, np.float64), 0.0, 1.0)
+    d = np.asarray(ndf.d_nodes)
+    if not np.all(np.isfinite(d)):
+        raise ParameterError(f"describe_model: TabulatedNDF.d_nodes has non-finite values {d.tolist()}")
+    return {"type": "TabulatedNDF", "theta": plain_numbers(np.arcsin(np.sqrt(x))), "d": plain_numbers(d),
+            "n_lambda": int(np.asarray(ndf.b_nodes).shape[0])}
+
+
+def ndf_from_description(d, where="model description"):
+    """Rebuild a :class:`~matfit.microfacet.TabulatedNDF` from :func:`describe_ndf`'s dict (its
+    constructor checks the table).
+
+    Parameters
+    ----------
+    d : dict
+        ``{"type": "TabulatedNDF", "theta", "d", "n_lambda"}``.
+    where : str
+        Named in error messages.
+
+    Returns
+    -------
+    matfit.microfacet.TabulatedNDF
+
+    Raises
+    ------
+    DataFormatError
+        Missing or unexpected fields, values that are not numbers, or a table the constructor
+        rejects.
+
+    Examples
+    --------
+    >>> from matfit.microfacet import GGX, TabulatedNDF
+    >>> tab = TabulatedNDF.from_distribution(GGX(0.3), n=64)
+    >>> round(float(ndf_from_description(describe_ndf(tab)).alpha_x), 3)
+    0.3
+    """
+    fields = set(d) - {"type"}
+    if fields != set(NDF_FIELDS):
+        raise DataFormatError(f"{where}: TabulatedNDF expects fields {list(NDF_FIELDS)}; missing "
+                              f"{sorted(set(NDF_FIELDS) - fields)}, unexpected {sorted(fields - set(NDF_FIELDS))}")
+    n_lambda = d["n_lambda"]
+    if isinstance(n_lambda, bool) or not isinstance(n_lambda, int):
+        raise DataFormatError(f"{where}: TabulatedNDF.n_lambda: expected an integer, found {n_lambda!r}")
+    arrays = {}
+    for name in ("theta", "d"):
+        try:
+            arrays[name] = np.asarray(d[name], dtype=float)
+        except (TypeError, ValueError):
+            raise DataFormatError(f"{where}: TabulatedNDF.{name}: expected a list of numbers, found {d[name]!r}") from None
+    try:
+        return TabulatedNDF(arrays["theta"], arrays["d"].astype(jnp.result_type(float)), n_lambda)
+    except ParameterError as exc:
+        raise DataFormatError(f"{where}: {exc}") from None
 
 
 def model_from_description(d, source="model description"):
@@ -130,8 +218,14 @@ def model_from_description(d, source="model description"):
     for name, f in fields.items():
         v = d[name]
         where = f"{source}: {cls.__name__}.{name}"
-        if isinstance(v, dict):
+        if isinstance(v, dict) and v.get("type") == "TabulatedNDF":
+            v = ndf_from_description(v, where)
+        elif isinstance(v, dict):
             v = model_from_description(v, source)
+        elif isinstance(v, list) and v and any(isinstance(x, dict) for x in v):
+            if not all(isinstance(x, dict) for x in v):
+                raise DataFormatError(f"{where}: expected a list of models (objects with a 'type' field), found {v!r}")
+            v = tuple(model_from_description(x, source) for x in v)
         elif f.metadata.get("static", False) or isinstance(v, (str, bool)) or v is None:
             pass
         else:

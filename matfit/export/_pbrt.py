@@ -34,7 +34,7 @@ from ..models import (Blend, Lambert, Layered, Plastic, RoughConductor, RoughDie
                       SmoothDielectric)
 from ._fidelity import fit_target, measure, relative_rmse
 from ._model_file import plain_numbers
-from ._result import ExportResult, ParamMapping, check_model, rgb
+from ._result import ExportResult, ParamMapping, check_model, reject_tabulated, rgb
 
 
 def _vals(x):
@@ -171,7 +171,8 @@ def to_pbrt(model) -> ExportResult:
     Raises
     ------
     ParameterError
-        ``model`` is not a matfit model or has no pbrt-v4 material.
+        ``model`` is not a matfit model or has no pbrt-v4 material (a
+        :class:`~matfit.models.TabulatedMicrofacet`: the message names the nearest analytic model).
 
     Examples
     --------
@@ -181,6 +182,7 @@ def to_pbrt(model) -> ExportResult:
     MakeNamedMaterial "matfit" "string type" "diffuse" "rgb reflectance" [ 0.5 0.4 0.3 ]
     """
     check_model("to_pbrt", model)
+    reject_tabulated("to_pbrt", model, "pbrt-v4")
     mapping, notes, fids = [], [], []
     lines = _material("matfit", model, mapping, notes, fids)
     exact = all(p.exact for p in mapping)

@@ -3,6 +3,7 @@ close the target comes to the model when the mapping is approximate."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -10,7 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ParameterError
-from ..models import AbstractBSDF
+from ..microfacet import nearest_analytic
+from ..models import AbstractBSDF, TabulatedMicrofacet
 from ._model_file import plain_numbers
 
 
@@ -37,6 +39,63 @@ def check_model(owner, model) -> None:
     """
     if not isinstance(model, AbstractBSDF):
         raise ParameterError(f"{owner}: model must be a matfit model, got {type(model).__name__}")
+
+
+def _tabulated_parts(model):
+    """The :class:`~matfit.models.TabulatedMicrofacet` models in ``model`` (itself or nested)."""
+    if isinstance(model, TabulatedMicrofacet):
+        return [model]
+    found = []
+    for f in dataclasses.fields(model):
+        v = getattr(model, f.name)
+        if isinstance(v, AbstractBSDF):
+            found += _tabulated_parts(v)
+    return found
+
+
+def reject_tabulated(owner, model, target) -> None:
+    """A :class:`~matfit.errors.ParameterError` when ``model`` is (or holds) a
+    :class:`~matfit.models.TabulatedMicrofacet`, which ``target`` cannot represent: the message
+    names the model and suggests the nearest analytic model (the GGX or Beckmann width of least
+    misfit to its tabulated D, :func:`~matfit.microfacet.nearest_analytic`, with its eta and k).
+
+    Parameters
+    ----------
+    owner : str
+        The exporter, named in the message.
+    model : matfit.models.AbstractBSDF
+        The model to export.
+    target : str
+        The renderer, named in the message.
+
+    Raises
+    ------
+    ParameterError
+        ``model`` holds a tabulated distribution of normals.
+
+    Examples
+    --------
+    >>> from matfit.microfacet import GGX, TabulatedNDF
+    >>> from matfit.models import Lambert, TabulatedMicrofacet
+    >>> reject_tabulated("to_pbrt", Lambert(0.5), "pbrt-v4")  # nothing tabulated: no error
+    >>> tab = TabulatedMicrofacet(TabulatedNDF.from_distribution(GGX(0.2)), 1.0, 3.0)
+    >>> reject_tabulated("to_pbrt", tab, "pbrt-v4")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    matfit.errors.ParameterError: to_pbrt: TabulatedMicrofacet ... RoughConductor(alpha=0.2, ...
+    """
+    parts = _tabulated_parts(model)
+    if not parts:
+        return
+    m = parts[0]
+    near = min((nearest_analytic(m.ndf, d) for d in ("ggx", "beckmann")), key=lambda r: r["misfit"])
+    eta, k = (np.round(np.asarray(a, float), 4).tolist() for a in (m.eta, m.k))
+    raise ParameterError(
+        f"{owner}: TabulatedMicrofacet (a rough conductor on a tabulated distribution of normals) cannot be written "
+        f"for {target}, which has no tabulated microfacet distribution; the nearest analytic model is "
+        f"RoughConductor(alpha={near['alpha']:.4g}, eta={eta}, k={k}, distribution={near['distribution']!r}, "
+        f"masking={m.masking!r}) (relative misfit of D {near['misfit']:.2%}): export that "
+        "(matfit.models.RoughConductor), or fit model='conductor' to the measured table")
 
 
 def rgb(owner, x):

@@ -4,10 +4,11 @@ from .fit import (METHODS, BatchFit, FitError, FitResult, fit, fit_arrays, fit_b
                   initial_guesses)
 from .losses import LOSSES, residuals
 from .methods import DEFAULT_METHOD, Method, get_method
-from .params import FAMILIES, Family, Param, Parametrization, TruthMap, family_describing, get_family
+from .params import FAMILIES, Family, Lobe, Param, Parametrization, TruthMap, compose_family, family_describing, get_family
 
 __all__ = [
-    "FAMILIES", "Family", "Param", "Parametrization", "TruthMap", "family_describing", "get_family",
+    "FAMILIES", "Family", "Param", "Parametrization", "TruthMap", "family_describing", "get_family", "Lobe",
+    "compose_family",
     "LOSSES", "residuals", "DEFAULT_METHOD", "Method", "get_method",
     "METHODS", "FitError", "FitResult", "fit", "fit_batch", "initial_guess", "initial_guesses",
     "BatchFit", "fit_arrays", "guesses_from_arrays",

@@ -11,6 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..cache import persistent_jit
 from ..fast import supports_soa
 from .lm import column_groups, half_sq, widen
 from .methods import METHODS
@@ -110,7 +111,11 @@ def compiled_solver(family, channels, fixed_items, tied, method, loss, robust, s
         r = jnp.stack(res.r, axis=-1) if split else res.r
         return z, obj, steps, ok, best, r[:n].reshape(-1), res.A, sub
 
-    return par, jax.jit(run), jax.jit(run_full), jax.jit(objective)
+    # traced once per machine, not per process (matfit.cache): a solver takes longer to trace
+    # than its compiled program takes to load
+    key = (family, channels, fixed_items, tied, method, loss, robust, scale, max_steps, rtol, atol, split)
+    return (par, jax.jit(run), persistent_jit(jax.jit(run_full), ("run_full",) + key),
+            persistent_jit(jax.jit(objective), ("objective",) + key))
 
 
 def fixed_items(fixed):

@@ -1,6 +1,13 @@
 """Where fits start: the data-driven guess (diffuse floor, peak height and width, and what the
-family itself knows), the screened extra starts, and the jitted helpers that map starts to and
-from the unconstrained space."""
+family itself knows), the screened extra starts (among them the widths of the distribution of
+normals extracted from the table's retro-reflection, Dupuy et al. 2015), and the jitted helpers
+that map starts to and from the unconstrained space.
+
+References
+----------
+- J. Dupuy, E. Heitz, J.-C. Iehl, P. Poulin, V. Ostromoukhov, "Extracting Microfacet-based BRDF
+  Parameters from Arbitrary Materials with Power Iterations", CGF 34(4):21-30, 2015.
+"""
 
 from __future__ import annotations
 
@@ -10,6 +17,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..errors import ParameterError
+from ..microfacet import ndf_start
 from ..parallel import shard_batch
 from ..table import Table
 from .params import Parametrization
@@ -17,7 +26,13 @@ from ._result import FitError
 from ._solver import batched_run
 
 __all__ = ["initial_guess", "initial_guesses", "guesses_from_arrays", "percentile10", "SCREEN_PER_START", "candidates",
-           "fit_starts", "screened_starts", "compiled_helpers"]
+           "fit_starts", "screened_starts", "compiled_helpers", "ndf_widths", "NDF_CANDIDATE", "WIDTH_ENTRIES"]
+
+#: :func:`fit_starts` adds the start of :func:`ndf_widths` to the screened candidates (set False
+#: to compare with the starts without it).
+NDF_CANDIDATE = True
+#: The entries of the generic guess that are microfacet widths (``widths`` of :func:`guesses_from_arrays`).
+WIDTH_ENTRIES = ("alpha", "alpha_base", "alpha_coat")
 
 
 def initial_guess(table: Table, par: Parametrization):
@@ -70,7 +85,7 @@ def percentile10(v, valid):
     return a + (pos - lo)[:, None] * (b - a)
 
 
-def initial_guesses(tables, par: Parametrization):
+def initial_guesses(tables, par: Parametrization, widths=None):
     """:func:`initial_guess` for many tables of one shape at once (vectorized over the tables;
     a texel map's guesses are a few array operations, not a loop over the texels).
 
@@ -80,6 +95,8 @@ def initial_guesses(tables, par: Parametrization):
         Tables of one shape (rows and channels).
     par : Parametrization
         The family, channels and fixed parameters.
+    widths : mapping, optional
+        Microfacet widths replacing the generic half-width ones (see :func:`guesses_from_arrays`).
 
     Returns
     -------
@@ -101,10 +118,10 @@ def initial_guesses(tables, par: Parametrization):
     M = stack([np.asarray(t.valid, bool) for t in tables])
     WO = stack([np.asarray(t.wo, float) for t in tables])
     WI = stack([np.asarray(t.wi, float) for t in tables])
-    return guesses_from_arrays(WO, WI, V, M, par, one=len(tables) == 1)
+    return guesses_from_arrays(WO, WI, V, M, par, one=len(tables) == 1, widths=widths)
 
 
-def guesses_from_arrays(WO, WI, V, M, par: Parametrization, one=False):
+def guesses_from_arrays(WO, WI, V, M, par: Parametrization, one=False, widths=None):
     """:func:`initial_guesses` of a stack of tables given as arrays: directions ``WO``, ``WI``
     ``(B, N, 3)`` (broadcast views are fine: directions shared by every table cost no copy),
     values ``V`` ``(B, N, C)`` and the valid rows ``M`` ``(B, N)``.
@@ -121,6 +138,10 @@ def guesses_from_arrays(WO, WI, V, M, par: Parametrization, one=False):
         The family, channels and fixed parameters.
     one : bool, default False
         The stack is a single table (its error messages say "the table").
+    widths : mapping, optional
+        Entries of :data:`WIDTH_ENTRIES` (scalar or ``(B,)``) replacing the generic widths read off
+        the peak's half width, before the family's constant starts and its refinement (which
+        then starts from them): e.g. :func:`ndf_widths`.
 
     Returns
     -------
@@ -131,6 +152,8 @@ def guesses_from_arrays(WO, WI, V, M, par: Parametrization, one=False):
     ------
     FitError
         When a table has no valid row.
+    ParameterError
+        For a ``widths`` entry that is not one of :data:`WIDTH_ENTRIES`.
 
     Examples
     --------
@@ -170,6 +193,11 @@ def guesses_from_arrays(WO, WI, V, M, par: Parametrization, one=False):
         "eta": ones.copy(),
         "k": k.copy(), "eta_base": ones, "k_base": k, "eta_coat": np.full(B, 1.5), "f0": r0,
     }
+    for name, value in (widths or {}).items():
+        if name not in WIDTH_ENTRIES:
+            raise ParameterError(f"guesses_from_arrays: widths entry {name!r} is not a width of the guess; use one of "
+                                 f"{list(WIDTH_ENTRIES)}")
+        guess[name] = np.broadcast_to(np.asarray(value, float), (B,)).copy()
     # what the family itself knows: constant starts, then its data-driven refinement
     for p in par.family.params:
         if p.name in par.family.starts:
@@ -194,10 +222,14 @@ def guesses_from_arrays(WO, WI, V, M, par: Parametrization, one=False):
 SCREEN_PER_START = 8
 
 
-def candidates(par, base, n_extra, seed):
-    """``SCREEN_PER_START * n_extra`` candidate starts per table, (B, K, p): half the data-driven
-    start plus N(0, 1) steps in the unconstrained space, half spread over the whole parameter box
-    (bounded parameters uniform in (2 %, 98 %) of their range, others N(0, 1) in z)."""
+def candidates(par, base, n_extra, seed, extra=None):
+    """``SCREEN_PER_START * n_extra + 1`` candidate starts per table, (B, K + 1, p): half of the
+    first K the data-driven start plus N(0, 1) steps in the unconstrained space, half spread over
+    the whole parameter box (bounded parameters uniform in (2 %, 98 %) of their range, others
+    N(0, 1) in z); the last one is ``extra`` (B, 1, p), another data-driven start in the
+    unconstrained space (:func:`fit_starts`' extracted widths), or ``base`` again where there is
+    none (:func:`screened_starts` then never picks it). The slot is always there, so that the
+    screening's compiled shape does not depend on whether a table gives the extra start."""
     K = SCREEN_PER_START * n_extra
     rng = np.random.default_rng(seed)
     local = rng.normal(0, 1.0, (K - K // 2, par.size))
@@ -205,14 +237,64 @@ def candidates(par, base, n_extra, seed):
     bounded = np.isfinite(par.lower_upper()[1])
     spread = np.where(bounded, np.log(u) - np.log1p(-u), rng.normal(0, 1.0, u.shape))
     base = np.asarray(base)
+    slot = base[:, None, :] if extra is None else np.asarray(extra, base.dtype).reshape(base.shape[0], 1, -1)
     return np.concatenate([base[:, None, :] + local.astype(base.dtype)[None],
-                           np.broadcast_to(spread.astype(base.dtype), (base.shape[0],) + spread.shape)], axis=1)
+                           np.broadcast_to(spread.astype(base.dtype), (base.shape[0],) + spread.shape), slot], axis=1)
+
+
+def ndf_widths(table, diffuse=0.0):
+    """Microfacet widths from the distribution of normals extracted off the table's
+    retro-reflection (:func:`~matfit.microfacet.ndf_start`, Dupuy et al. 2015), as entries of
+    :data:`WIDTH_ENTRIES`, or None when the table cannot give them.
+
+    ``alpha`` is the GGX width of least misfit, ``alpha_base`` = ``alpha_coat`` = ``alpha``;
+    where the extraction suggests two lobes, ``alpha`` and ``alpha_coat`` are the narrow lobe's
+    width (the peak, which dominates a least-squares fit; a clear coat over a rougher layer) and
+    ``alpha_base`` the wide one's. Only the rows near backscattering are read (a few percent of a
+    MERL table, selected by one dot product per row).
+
+    Parameters
+    ----------
+    table : matfit.Table
+        The table.
+    diffuse : float or array_like (C,), optional
+        A diffuse floor (1/sr) subtracted first (default 0; :func:`fit_starts` passes the
+        guess's albedo / pi for a family with one).
+
+    Returns
+    -------
+    dict or None
+        ``{"alpha", "alpha_base", "alpha_coat"}`` (floats), or None for a table without enough
+        rows near backscattering (or nothing above the floor there).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit import Table
+    >>> from matfit.fitting._starts import ndf_widths
+    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]]); wi = wo[::-1].copy()
+    >>> print(ndf_widths(Table(wo=wo, wi=wi, values=np.full((2, 3), 0.2))))  # no retro-reflection rows
+    None
+    """
+    try:
+        # a start needs no 1e-6 fixed point: fewer iterations bound the cost on noisy tables
+        s = ndf_start(table, diffuse=diffuse, max_iter=30, tol=1e-5)
+    except ParameterError:  # no (or too few) rows near backscattering, nothing above the floor
+        return None
+    alpha = float(s["alpha"])
+    narrow, wide = (float(a) for a in s["two_lobe"]["alpha"]) if s["lobes"] == 2 else (alpha, alpha)
+    if not np.all(np.isfinite([alpha, narrow, wide])):
+        return None
+    return {"alpha": narrow, "alpha_base": wide, "alpha_coat": narrow}
 
 
 def fit_starts(table, par, n, seed, objective, arrays, init=None):
     """The ``n`` starts that :func:`~matfit.fitting.fit` runs: the data-driven guess (with
     ``init``'s values replacing its entries), then the best screened candidates
-    (:func:`screened_starts`).
+    (:func:`screened_starts`). With ``n > 1`` and :data:`NDF_CANDIDATE`, one candidate is the
+    data-driven guess again with the widths of :func:`ndf_widths` (and ``init``), where the table
+    gives them and the family reads them (the start differs from the first): one more candidate,
+    screened like the others.
 
     Parameters
     ----------
@@ -252,25 +334,39 @@ def fit_starts(table, par, n, seed, objective, arrays, init=None):
     g = initial_guess(table, par)
     if init is not None:
         g.update(init)
-    base = np.asarray(compiled_helpers(par)["z_from_theta"](g)).astype(arrays[0].dtype)[None]
-    return screened_starts(objective, par, base, n, seed, arrays)[0]
+    to_z = compiled_helpers(par)["z_from_theta"]
+    base = np.asarray(to_z(g)).astype(arrays[0].dtype)[None]
+    extra = None
+    reads_widths = par.family.refine is not None or any(p.name in WIDTH_ENTRIES for p in par.free)
+    if n > 1 and NDF_CANDIDATE and reads_widths:
+        widths = ndf_widths(table, np.asarray(g["albedo"], float) / np.pi if "albedo" in g else 0.0)
+        if widths is not None:
+            gn = {k: v[0] for k, v in initial_guesses([table], par, widths=widths).items()}
+            gn.update(init or {})
+            zn = np.asarray(to_z(gn)).astype(base.dtype)[None]
+            if np.all(np.isfinite(zn)) and not np.allclose(zn, base):
+                extra = zn[:, None, :]
+    return screened_starts(objective, par, base, n, seed, arrays, extra=extra)[0]
 
 
-def screened_starts(objective, par, base, n, seed, arrays, batched=False):
+def screened_starts(objective, par, base, n, seed, arrays, batched=False, extra=None):
     """Starts per table, (B, n, p): the data-driven start ``base`` (B, p) first, then the ``n - 1``
-    candidates of :func:`candidates` with the lowest objective on the table (one vectorized
-    evaluation of the fit's own objective; multi-start without the cost of ``n`` full solves
-    from blind perturbations, which for layered and metal families mostly end at a bound)."""
+    candidates of :func:`candidates` (``extra`` (B, 1, p) one more of them, where given) with the
+    lowest objective on the table (one vectorized evaluation of the fit's own objective; multi-start without the cost of
+    ``n`` full solves from blind perturbations, which for layered and metal families mostly end at
+    a bound)."""
     base = np.asarray(base)
     if n <= 1:
         return jnp.asarray(base[:, None, :])
-    cand = candidates(par, base, n - 1, seed)  # numpy: no eager JAX operations to dispatch
+    cand = candidates(par, base, n - 1, seed, extra)  # numpy: no eager JAX operations to dispatch
     if batched:
         (c, a), nb = shard_batch((jnp.asarray(cand), arrays))
         obj = np.asarray(batched_run(objective)(c, a)[:nb])
     else:
         obj = np.asarray(objective(jnp.asarray(cand[0]), arrays))[None]
     obj = np.where(np.isfinite(obj), obj, np.inf)
+    if extra is None:  # the empty extra slot (a copy of base) is never a start
+        obj[:, -1] = np.inf
     best = np.argsort(obj, axis=1, kind="stable")[:, : n - 1]
     return jnp.asarray(np.concatenate([base[:, None, :], np.take_along_axis(cand, best[:, :, None], axis=1)], axis=1))
 

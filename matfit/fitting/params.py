@@ -18,10 +18,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import ParameterError
+from ._compose import Lobe, LobeRefine, LobeSpec, lobe_layout
 from ._conductor_guess import refine_conductor
 from ..models import CoatedConductor, DiffuseSpecular, Lambert, Plastic, RoughConductor, RoughDielectric
 
-__all__ = ["Param", "TruthMap", "Family", "FAMILIES", "family_describing", "get_family", "check_solver_options", "Parametrization"]
+__all__ = ["Param", "TruthMap", "Family", "FAMILIES", "family_describing", "get_family", "check_solver_options", "Parametrization",
+           "Lobe", "compose_family"]
 
 
 @dataclass(frozen=True)
@@ -303,6 +305,155 @@ def family_describing(spec):
     return next((f for f in FAMILIES.values() if f.describes(spec)), None)
 
 
+def compose_family(name, lobes, base="lambert", weights="channels", ordered=True, share=(), tied=(), fixed=None,
+                   bounds=None, starts=None, doc="") -> Family:
+    """Declare a family of a Lambertian base plus microfacet lobes (:class:`~matfit.models.MultiLobe`).
+
+    The family's parameters, their bounds, generic starts, report names, the build of the model
+    and a data-driven start come from the lobes' description. Parameters are named after their
+    lobe (``alpha_1``, ``ks_2``, ...; see the table below); the generic start gives the lobes
+    distinct widths (narrow, medium, wide: 0.05, 0.2, 0.8), and with ``ordered`` (the default)
+    lobe ``j >= 2``'s width is fitted as the ratio ``ratio_j = alpha_j / alpha_{j-1} > 1``, so
+    that the lobes stay ordered from narrow to wide and a fit cannot swap them (equal lobes in
+    another order are the same model). The data-driven start (:meth:`LobeSpec.refine
+    <matfit.fitting._compose.LobeSpec.refine>`) solves for the diffuse albedo and the lobes'
+    amplitudes by non-negative least squares over a small grid of widths and Fresnel levels.
+
+    ==========  ==============================  ==========================================
+    parameter   bounds                          when
+    ==========  ==============================  ==========================================
+    albedo[C]   (0, 1)                          ``base="lambert"``
+    alpha_j     (1e-3, 1.5), Blinn-Phong 1      lobe 1, or every lobe when not ``ordered``
+    ratio_j     (1, 100)                        lobes 2.. when ``ordered``
+    ks_j[C]     (0, 1)                          ``weights="channels"``
+    mix_j       (0, 1)                          ``weights="mixture"``, lobes 2..
+    f0_j        (0, 1)                          Schlick lobes (per channel unless the
+                                                weights are per channel)
+    eta_j       (1.01, 4)                       dielectric lobes
+    eta_j[C]    (0.05, 8)                       conductor lobes
+    k_j[C]      (0, 12)                         conductor lobes
+    ==========  ==============================  ==========================================
+
+    Parameters
+    ----------
+    name : str
+        The family's name (``fit(table, model=family)``; add it to :data:`FAMILIES` to fit it
+        by name).
+    lobes : sequence of Lobe or str
+        The lobes, one :class:`Lobe` each (a string is a distribution: ``"ggx"`` is
+        ``Lobe("ggx")``, a Schlick lobe).
+    base : {"lambert", None}, default "lambert"
+        A Lambertian base (``albedo``), or none (the lobes alone: a metal).
+    weights : {"channels", "mixture", "none"}, default "channels"
+        ``"channels"``: lobe j is scaled by ``ks_j`` per channel (Löw's Cook-Torrance ``k_s``:
+        the weight is the lobe's colour, a Schlick F0 one value); ``"mixture"``: the lobes'
+        weights sum to 1 (``mix_j``: lobe j's share of lobes 1..j; one surface whose roughness
+        has several scales); ``"none"``: every weight is 1 (the Fresnel term alone sets the
+        level, a Schlick F0 is then per channel).
+    ordered : bool, default True
+        Fit the widths of lobes 2.. as ratios to the previous lobe's (``ratio_j > 1``).
+    share : sequence of str, default ()
+        Fresnel parameters (``"f0"``, ``"eta"``, ``"k"``) shared by every lobe that has one:
+        one parameter without a lobe suffix (``share=("eta", "k")``: one metal).
+    tied : sequence of str, default ()
+        Per-channel parameters fitted as one value for every channel (``tied=("ks_1",)``: a
+        white specular lobe). A fit's own ``tied`` does the same for one fit.
+    fixed : mapping, optional
+        Parameters held at given values by the family (not parameters of it any more).
+    bounds : mapping, optional
+        ``{name: (lower, upper)}`` replacing parameters' bounds.
+    starts : mapping, optional
+        Constant starting values replacing the data-driven ones (:attr:`Family.starts`).
+    doc : str, default ""
+        One line for reports (default: a description of the lobes).
+
+    Returns
+    -------
+    Family
+        With a :class:`~matfit.fitting._compose.LobeSpec` as its ``build`` (which also gives
+        the lobes' widths and weights from parameter values) and the data-driven start as its
+        ``refine`` hook.
+
+    Raises
+    ------
+    matfit.ParameterError
+        Naming the argument: an unknown option or parameter name, bounds out of order, fixed
+        values or starts out of range or of the wrong size.
+
+    Examples
+    --------
+    >>> from matfit.fitting import Lobe, Parametrization, compose_family
+    >>> fam = compose_family("haze", [Lobe("ggx"), Lobe("beckmann", fresnel="dielectric")],
+    ...                      tied=("ks_1",), fixed={"eta_2": 1.5})
+    >>> [p.name for p in fam.params]
+    ['albedo', 'alpha_1', 'ks_1', 'f0_1', 'ratio_2', 'ks_2']
+    >>> Parametrization(fam, 3).labels[:4]
+    ['albedo[0]', 'albedo[1]', 'albedo[2]', 'alpha_1']
+    >>> fam == compose_family("haze", [Lobe("ggx"), Lobe("beckmann", fresnel="dielectric")],
+    ...                       tied=("ks_1",), fixed={"eta_2": 1.5})
+    True
+    """
+    owner = "compose_family"
+    if not isinstance(name, str) or not name:
+        raise ParameterError(f"{owner}: name must be a non-empty string, got {name!r}")
+    if isinstance(lobes, (str, Lobe)) or not isinstance(lobes, (list, tuple)) or not lobes:
+        raise ParameterError(f"{owner}: lobes must be a non-empty list of Lobe (or distribution names), got {lobes!r}")
+    lobes = tuple(Lobe(lb) if isinstance(lb, str) else lb for lb in lobes)
+    for i, lb in enumerate(lobes):
+        if not isinstance(lb, Lobe):
+            raise ParameterError(f"{owner}: lobes[{i}] must be a Lobe or a distribution name, got {type(lb).__name__}")
+    for what, v in (("share", share), ("tied", tied)):
+        if isinstance(v, str) or not isinstance(v, (list, tuple)):
+            raise ParameterError(f"{owner}: {what} must be a sequence of parameter names, got {v!r}")
+    if not isinstance(ordered, bool):
+        raise ParameterError(f"{owner}: ordered must be True or False, got {ordered!r}")
+    slots = lobe_layout(base, lobes, weights, ordered, tuple(share), tuple(tied))
+    by_name = {s.name: s for s in slots}
+    for what, m in (("fixed", fixed), ("bounds", bounds), ("starts", starts)):
+        if m is not None and not isinstance(m, Mapping):
+            raise ParameterError(f"{owner}: {what} must be a dict keyed by parameter name, got {type(m).__name__}")
+        for n in (m or {}):
+            if n not in by_name:
+                raise ParameterError(f"{owner}: {what} names {n!r}, which is not a parameter; the parameters are "
+                                     f"{list(by_name)}")
+    limits = {s.name: (s.lower, s.upper) for s in slots}
+    for n, b in (bounds or {}).items():
+        try:
+            lo, hi = (float(x) for x in b)
+        except (TypeError, ValueError):
+            raise ParameterError(f"{owner}: bounds[{n!r}] must be a pair (lower, upper), got {b!r}") from None
+        if not (np.isfinite(lo) and lo < hi and not np.isnan(hi)):
+            raise ParameterError(f"{owner}: bounds[{n!r}] must be finite lower < upper, got {b!r}")
+        limits[n] = (lo, hi)
+    every = []
+    for s in slots:
+        lo, hi = limits[s.name]
+        generic = float(np.clip(s.generic, lo + 1e-3 * (hi - lo), hi - 1e-3 * (hi - lo)))
+        every.append(Param(s.name, lo, hi, s.per_channel, s.doc, generic=generic))
+    # fixed values and constant starts are checked as a fit checks them (range, finite, channels),
+    # on the family of every parameter; a per-channel value sets the channel count it is read with
+    given = list((fixed or {}).values()) + list((starts or {}).values())
+    channels = max([1] + [len(v) for v in given if isinstance(v, (list, tuple)) or np.ndim(v) == 1])
+    check = Parametrization(Family(name, tuple(every), None), channels)
+    fixed_items = []
+    try:
+        for what, m in (("fixed", fixed), ("starts", starts)):
+            for n, v in (m or {}).items():
+                check.check_value(what, n, v)
+        for n, v in (fixed or {}).items():
+            a = np.atleast_1d(np.asarray(v, dtype=float))
+            fixed_items.append((n, tuple(a.tolist()) if a.size > 1 else float(a[0])))
+    except ParameterError as e:
+        raise ParameterError(f"{owner}: {e}") from None
+    fixed_names = {n for n, _ in fixed_items}
+    params = tuple(p for p in every if p.name not in fixed_names)
+    spec = LobeSpec(base, lobes, weights, ordered, slots, tuple(sorted(fixed_items)))
+    if not doc:
+        kinds = ", ".join(f"{lb.distribution}/{lb.fresnel}" for lb in lobes)
+        doc = f"{'Lambertian base plus ' if base else ''}{len(lobes)} microfacet lobe(s) ({kinds}), weights {weights}"
+    return Family(name, params, spec, doc, starts=dict(starts or {}), refine=LobeRefine(spec))
+
+
 def _conductor(distribution):
     return lambda p, C: RoughConductor(p["alpha"], p["eta"], p["k"], distribution=distribution)
 
@@ -349,8 +500,6 @@ FAMILIES: dict[str, Family] = {
         lambda p, C: DiffuseSpecular(p["albedo"], p["f0"], p["alpha"]),
         "Lambertian albedo plus a GGX lobe with Schlick's Fresnel (the texel model of captures)"),
 }
-
-
 def get_family(name) -> Family:
     """The family called ``name`` (see :data:`FAMILIES`).
 
@@ -777,3 +926,17 @@ class Parametrization:
         'Plastic'
         """
         return self.family.build(self.full(self.theta(z)), self.channels)
+
+
+# Lambertian base plus 1, 2, 3 GGX lobes with a per-channel weight and one Schlick F0 shared by the
+# lobes (one interface, several roughness scales: a sharp highlight, a haze), and a metal whose
+# roughness has two scales (one complex index, mixture weights)
+FAMILIES.update({
+    f"lobes{K}": compose_family(
+        f"lobes{K}", [Lobe("ggx", "schlick")] * K, share=("f0",),
+        doc=f"Lambertian albedo plus {K} GGX lobe{'s' if K > 1 else ''} (per-channel weights ks, one Schlick F0"
+            f"{', widths ordered' if K > 1 else ''})")
+    for K in (1, 2, 3)})
+FAMILIES["metal2"] = compose_family(
+    "metal2", [Lobe("ggx", "conductor")] * 2, base=None, weights="mixture", share=("eta", "k"),
+    doc="rough conductor with two GGX widths mixed (one complex index)")

@@ -5,7 +5,7 @@ from .beckmann import Beckmann
 from .blinn_phong import BlinnPhong
 from .ggx import GGX
 from .tabulated import TabulatedNDF, back_facing_area, interpolate_ndf, ndf_grid, projected_mass
-from .extract import EXTRACTION_MASKING, beckmann_ndf, extract_ndf, ggx_ndf, ndf_start
+from .extract import EXTRACTION_MASKING, extract_ndf, ndf_start, nearest_analytic
 
 DISTRIBUTIONS = {"ggx": GGX, "beckmann": Beckmann, "blinn_phong": BlinnPhong}
 
@@ -61,7 +61,6 @@ __all__ = [
     "interpolate_ndf",
     "extract_ndf",
     "ndf_start",
+    "nearest_analytic",
     "EXTRACTION_MASKING",
-    "ggx_ndf",
-    "beckmann_ndf",
 ]

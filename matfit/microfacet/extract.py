@@ -39,17 +39,20 @@ References
 
 from __future__ import annotations
 
+import functools
 import math
 
+import jax
 import jax.numpy as jnp
 import numpy as np
-from scipy import optimize
 
 from ..errors import ParameterError
 from ..table import Table
+from .beckmann import Beckmann
+from .ggx import GGX
 from .tabulated import TabulatedNDF, back_facing_area, interpolate_ndf, ndf_grid, projected_mass
 
-__all__ = ["extract_ndf", "ndf_start", "EXTRACTION_MASKING", "ggx_ndf", "beckmann_ndf"]
+__all__ = ["extract_ndf", "ndf_start", "nearest_analytic", "EXTRACTION_MASKING"]
 
 #: Masking forms of the backscattering relation: :math:`G_2(k, k) = G_1^2` (``"separable"``),
 #: :math:`1/(1 + 2\Lambda)` (``"height_correlated"``) or :math:`G_1` (``"smith_g1"``, Dupuy et al.).
@@ -65,63 +68,37 @@ TWO_LOBE_GAIN = 0.5
 _ALPHA_RANGE = (1e-4, 3.0)
 #: Nodes of the masking table during the iterations.
 _N_MU = 128
+#: The library distributions the extracted D is fitted with.
+_DISTRIBUTIONS = {"ggx": GGX, "beckmann": Beckmann}
 
 
-def ggx_ndf(theta, alpha):
-    r"""GGX's :math:`D(\theta) = \alpha^2 / (\pi(\alpha^2\cos^2\theta + \sin^2\theta)^2)` (numpy,
-    finite up to and at :math:`\pi/2`).
-
-    Parameters
-    ----------
-    theta : array_like
-        Angles from the normal, radians.
-    alpha : array_like
-        Widths (broadcast against ``theta``).
-
-    Returns
-    -------
-    numpy.ndarray
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit.microfacet import ggx_ndf
-    >>> round(float(ggx_ndf(0.0, 0.5) * np.pi * 0.25), 6)
-    1.0
-    """
-    theta, alpha = np.asarray(theta, np.float64), np.asarray(alpha, np.float64)
-    a2 = alpha * alpha
-    return a2 / (np.pi * (a2 * np.cos(theta) ** 2 + np.sin(theta) ** 2) ** 2)
+def _normals(theta):
+    """Unit normals at angles ``theta`` from +z in the xz plane, (..., 3), computed in float64
+    (so that the horizon node's cosine stays > 0 once cast to float32)."""
+    theta = np.asarray(theta, np.float64)
+    return np.stack([np.sin(theta), np.zeros_like(theta), np.cos(theta)], -1)
 
 
-def beckmann_ndf(theta, alpha):
-    r"""Beckmann's :math:`D(\theta) = e^{-\tan^2\theta/\alpha^2} / (\pi\alpha^2\cos^4\theta)` (numpy,
-    0 at :math:`\pi/2`).
+@functools.partial(jax.jit, static_argnums=0)
+def _d_at(kind, m, alpha):
+    return _DISTRIBUTIONS[kind](alpha).D(m)
 
-    Parameters
-    ----------
-    theta : array_like
-        Angles from the normal, radians.
-    alpha : array_like
-        Widths (broadcast against ``theta``).
 
-    Returns
-    -------
-    numpy.ndarray
+def _library_d(kind, theta, alpha):
+    """The library distribution's :math:`D` (``"ggx"`` or ``"beckmann"``, isotropic ``alpha``) at
+    angles ``theta`` from the normal, as float64 numpy (broadcast ``theta`` against ``alpha``)."""
+    m = jnp.asarray(_normals(theta))
+    return np.asarray(_d_at(kind, m, jnp.asarray(np.asarray(alpha, np.float64), m.dtype)), np.float64)
 
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit.microfacet import beckmann_ndf
-    >>> round(float(beckmann_ndf(0.0, 0.5) * np.pi * 0.25), 6), float(beckmann_ndf(np.pi / 2, 0.5))
-    (1.0, 0.0)
-    """
-    theta, alpha = np.asarray(theta, np.float64), np.asarray(alpha, np.float64)
-    c = np.cos(theta)
-    ok = c > 1e-6
-    cs = np.where(ok, c, 1.0)
-    t2 = (1 - cs * cs) / (cs * cs)
-    return np.where(ok, np.exp(-t2 / (alpha * alpha)) / (np.pi * alpha * alpha * cs ** 4), 0.0)
+
+@jax.jit
+def _two_lobe_d(p, m):
+    """``s D_GGX(a1) + (1 - s) D_GGX(a2)`` with ``p = (logit s, log a1, log a2)``."""
+    s = jax.nn.sigmoid(p[0])
+    return s * GGX(jnp.exp(p[1])).D(m) + (1 - s) * GGX(jnp.exp(p[2])).D(m)
+
+
+_two_lobe_jacobian = jax.jit(jax.jacfwd(_two_lobe_d))
 
 
 # ------------------------------------------------------------------------------------------------
@@ -148,8 +125,13 @@ def _retro_rows(table, max_theta_d, max_theta, diffuse, channel):
     else:
         raise ParameterError(f"{owner}: channel must be None or an index in [0, {nc}), got {channel!r}")
 
-    wo, wi = table.wo[table.valid], table.wi[table.valid]
-    f = table.values[table.valid]
+    # a cheap first cut on the whole table (wo . wi = cos 2 theta_d), so that the rest reads only
+    # the few rows near backscattering (a MERL table: ~3 % of 1.1 M) and memory stays bounded
+    two_d = min(2 * max_theta_d, math.pi)
+    near = np.einsum("ni,ni->n", table.wo, table.wi) >= math.cos(two_d) - 1e-9
+    idx = np.flatnonzero(near & np.asarray(table.valid, bool))
+    wo, wi = np.asarray(table.wo[idx], np.float64), np.asarray(table.wi[idx], np.float64)
+    f = np.asarray(table.values[idx], np.float64)
     s = wo + wi
     ns = np.linalg.norm(s, axis=1)
     ok = ns > 1e-12
@@ -297,11 +279,11 @@ def extract_ndf(table, n_theta=128, masking="separable", max_theta_d=math.radian
     --------
     >>> import numpy as np
     >>> from matfit import Table
-    >>> from matfit.microfacet import extract_ndf, ggx_ndf
+    >>> from matfit.microfacet import GGX, extract_ndf
     >>> t = np.linspace(0.0, 1.4, 60); c, s = np.cos(t), np.sin(t)
     >>> w = np.stack([s, 0 * t, c], -1)                          # exact retro-reflection rows
     >>> g1 = 2 * c / (c + np.sqrt(c ** 2 + 0.09 * s ** 2))       # GGX's G1 at alpha = 0.3
-    >>> f = 0.9 * ggx_ndf(t, 0.3) * g1 / (4 * c ** 2)            # F D G1 / (4 cos^2)
+    >>> f = 0.9 * np.asarray(GGX(0.3).D(w)) * g1 / (4 * c ** 2)  # F D G1 / (4 cos^2)
     >>> tab = extract_ndf(Table(wo=w, wi=w, values=f[:, None], channels="mono"), masking="smith_g1")
     >>> round(float(tab.alpha_x), 2)  # 1 / sqrt(pi D(0))
     0.3
@@ -327,14 +309,20 @@ def _misfit(d, model, w):
     return np.sqrt(np.sum(w * (d - model) ** 2, -1) / np.sum(w * d * d))
 
 
-def _fit_alpha(theta, d, ndf):
-    """The alpha of ``ndf`` of least projected-area L2 misfit to ``d`` (grid in log alpha, then
-    a bounded refinement), and the misfit."""
+def _fit_alpha(theta, d, kind):
+    """The alpha of the library distribution ``kind`` of least projected-area L2 misfit to ``d``
+    (grid in log alpha, then a bounded refinement), and the misfit."""
     w = _quadrature_weights(theta)
     grid = np.geomspace(*_ALPHA_RANGE, 141)
+
+    def ndf(t, a):
+        return _library_d(kind, t, a)
+
     mis = _misfit(d, ndf(theta[None, :], grid[:, None]), w)
     i = int(np.argmin(mis))
     lo, hi = np.log(grid[max(i - 1, 0)]), np.log(grid[min(i + 1, len(grid) - 1)])
+    from scipy import optimize  # on first use: `import matfit` stays quick (scipy.optimize is large)
+
     res = optimize.minimize_scalar(lambda la: _misfit(d, ndf(theta, np.exp(la)), w), bounds=(lo, hi),
                                    method="bounded", options={"xatol": 1e-7})
     a = float(np.exp(res.x))
@@ -345,10 +333,15 @@ def _fit_two_lobes(theta, d, alpha1):
     """Two GGX lobes ``s GGX(a1) + (1 - s) GGX(a2)`` of least misfit, from a few starts."""
     w = _quadrature_weights(theta)
     sw = np.sqrt(w / np.sum(w * d * d))
+    m = jnp.asarray(_normals(theta))
 
     def model(p):
-        s = 1 / (1 + np.exp(-p[0]))
-        return s * ggx_ndf(theta, np.exp(p[1])) + (1 - s) * ggx_ndf(theta, np.exp(p[2]))
+        return np.asarray(_two_lobe_d(jnp.asarray(p, m.dtype), m), np.float64)
+
+    def jac(p):  # exact derivatives: finite differences would not resolve a float32 D
+        return sw[:, None] * np.asarray(_two_lobe_jacobian(jnp.asarray(p, m.dtype), m), np.float64)
+
+    from scipy import optimize  # on first use, as in _fit_alpha
 
     best = None
     for s0, r1, r2 in ((0.5, 0.5, 2.0), (0.8, 1.0, 4.0), (0.2, 0.25, 1.0)):
@@ -356,7 +349,7 @@ def _fit_two_lobes(theta, d, alpha1):
         lo, hi = np.array([-12.0, la, la]), np.array([12.0, lb, lb])
         p0 = np.array([np.log(s0 / (1 - s0)), np.log(alpha1 * r1), np.log(alpha1 * r2)])
         p0 = np.clip(p0, lo + 1e-6, hi - 1e-6)
-        res = optimize.least_squares(lambda p: sw * (model(p) - d), p0, bounds=(lo, hi))
+        res = optimize.least_squares(lambda p: sw * (model(p) - d), p0, jac=jac, bounds=(lo, hi))
         if best is None or res.cost < best.cost:
             best = res
     p = best.x
@@ -458,18 +451,18 @@ def ndf_start(table, n_theta=128, masking="separable", max_theta_d=math.radians(
     --------
     >>> import numpy as np
     >>> from matfit import Table
-    >>> from matfit.microfacet import ggx_ndf, ndf_start
+    >>> from matfit.microfacet import GGX, ndf_start
     >>> t = np.linspace(0.0, 1.4, 60); c, s = np.cos(t), np.sin(t)
     >>> w = np.stack([s, 0 * t, c], -1)
-    >>> f = 0.9 * ggx_ndf(t, 0.3) * 2 * c / (c + np.sqrt(c ** 2 + 0.09 * s ** 2)) / (4 * c ** 2)
+    >>> f = 0.9 * np.asarray(GGX(0.3).D(w)) * 2 * c / (c + np.sqrt(c ** 2 + 0.09 * s ** 2)) / (4 * c ** 2)
     >>> start = ndf_start(Table(wo=w, wi=w, values=f[:, None], channels="mono"), masking="smith_g1")
     >>> round(start["alpha"], 3), round(float(start["f0"][0]), 2), start["lobes"], start["anisotropy"] is None
     (0.3, 0.9, 1, True)
     """
     r = _extract(table, n_theta, masking, max_theta_d, max_theta, diffuse, channel, max_iter, tol)
     theta, d = r["theta"], r["d"]
-    a_g, m_g = _fit_alpha(theta, d, ggx_ndf)
-    a_b, m_b = _fit_alpha(theta, d, beckmann_ndf)
+    a_g, m_g = _fit_alpha(theta, d, "ggx")
+    a_b, m_b = _fit_alpha(theta, d, "beckmann")
     two = _fit_two_lobes(theta, d, a_g)
     lobes = 2 if (m_g > TWO_LOBE_MISFIT and two["misfit"] <= TWO_LOBE_GAIN * m_g) else 1
     e1, e2 = _slope_moments(theta, d, max_theta)
@@ -481,3 +474,45 @@ def ndf_start(table, n_theta=128, masking="separable", max_theta_d=math.radians(
         "f0": r["f0"], "ndf": TabulatedNDF(theta, d), "iterations": r["iterations"], "converged": r["converged"],
         "rows": int(len(r["u_rows"])),
     }
+
+
+def nearest_analytic(ndf, distribution="ggx"):
+    r"""The isotropic analytic distribution closest to a tabulated one: the width :math:`\alpha` of
+    least relative misfit :math:`\lVert D - D_\alpha\rVert / \lVert D\rVert` in the projected
+    measure (as :func:`ndf_start` fits the extracted :math:`D`).
+
+    Parameters
+    ----------
+    ndf : TabulatedNDF
+        The tabulated distribution.
+    distribution : {"ggx", "beckmann"}, optional
+        The analytic family (default ``"ggx"``).
+
+    Returns
+    -------
+    dict
+        ``distribution``, ``alpha`` (float) and ``misfit`` (the relative L2 misfit, 0 for a table
+        of that family up to its interpolation).
+
+    Raises
+    ------
+    ParameterError
+        For an ``ndf`` that is not a :class:`~matfit.microfacet.TabulatedNDF` or an unknown
+        distribution.
+
+    Examples
+    --------
+    >>> from matfit.microfacet import GGX, TabulatedNDF, nearest_analytic
+    >>> near = nearest_analytic(TabulatedNDF.from_distribution(GGX(0.25)))
+    >>> round(near["alpha"], 3), near["misfit"] < 1e-3
+    (0.25, True)
+    """
+    if not isinstance(ndf, TabulatedNDF):
+        raise ParameterError(f"nearest_analytic: ndf must be a matfit.microfacet.TabulatedNDF, got {type(ndf).__name__}")
+    if distribution not in _DISTRIBUTIONS:
+        raise ParameterError(f"nearest_analytic: distribution must be one of {sorted(_DISTRIBUTIONS)}, "
+                             f"got {distribution!r}")
+    x = np.clip(np.asarray(ndf.x_nodes, np.float64), 0.0, 1.0)
+    theta = np.arcsin(np.sqrt(x))
+    alpha, misfit = _fit_alpha(theta, np.asarray(ndf.d_nodes, np.float64), distribution)
+    return {"distribution": distribution, "alpha": alpha, "misfit": misfit}

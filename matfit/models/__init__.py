@@ -9,6 +9,7 @@ from .gltf_pbr import GltfPBR
 from .lambert import Lambert
 from .layered import CoatedConductor, Layered
 from .measured import MeasuredMERL, MeasuredRGL
+from .multi_lobe import MultiLobe, SpecularLobe
 from .plastic import Plastic
 from .rough_conductor import RoughConductor
 from .rough_dielectric import RoughDielectric
@@ -33,6 +34,8 @@ __all__ = [
     "GltfPBR",
     "MeasuredMERL",
     "MeasuredRGL",
+    "MultiLobe",
+    "SpecularLobe",
     "RoughConductor",
     "RoughDielectric",
     "SmoothConductor",

@@ -1,0 +1,668 @@
+"""Families of a Lambertian base plus microfacet lobes, declared in a few lines.
+
+:func:`~matfit.fitting.compose_family` turns a list of :class:`Lobe` specifications into a
+:class:`~matfit.fitting.Family` of :class:`~matfit.models.MultiLobe` models. This module holds
+what does not need the :class:`~matfit.fitting.Param` class: the specification, the layout of
+the parameters (names, bounds, generic starts), the build of the model from the parameters'
+values and the data-driven start (a variable projection: for a few candidate widths and Fresnel
+levels, the lobes' amplitudes and the diffuse albedo by weighted non-negative least squares,
+the best candidate kept).
+
+Parameter names (lobes numbered from 1; a parameter shared by the lobes has no suffix):
+
+=============  ===========================================================================
+``albedo``     the Lambertian base's albedo, per channel (``base="lambert"``)
+``alpha_1``    the first lobe's width
+``ratio_j``    ``alpha_j / alpha_{j-1}`` > 1 (``ordered=True``: the lobes from narrow to wide)
+``alpha_j``    lobe j's width (``ordered=False``)
+``ks_j``       lobe j's weight per channel (``weights="channels"``)
+``mix_j``      the share of lobe j in the weight of lobes 1..j (``weights="mixture"``, j >= 2)
+``f0_j``       a Schlick lobe's normal-incidence reflectance
+``eta_j``      a dielectric lobe's index, or a conductor lobe's real index (per channel)
+``k_j``        a conductor lobe's extinction, per channel
+=============  ===========================================================================
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from typing import Optional
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..errors import ParameterError
+from ..fresnel import fresnel_dielectric
+from ..microfacet import DISTRIBUTIONS, MASKING_FORMS
+from ..models import MultiLobe, SoAPairs, SpecularLobe
+from ..models.multi_lobe import FRESNEL_KINDS
+
+__all__ = ["Lobe", "Slot", "LobeSpec", "LobeRefine", "lobe_layout", "WEIGHT_MODES", "SHAREABLE"]
+
+#: How the lobes are weighted: a per-channel weight each, a mixture (weights summing to 1), or 1.
+WEIGHT_MODES = ("channels", "mixture", "none")
+#: The Fresnel parameters that lobes may share (one parameter for every lobe that has it).
+SHAREABLE = ("f0", "eta", "k")
+#: Widths of lobes 1, 2, 3, ... at the generic start: narrow, medium, wide (factor 4 apart).
+GENERIC_ALPHA, GENERIC_RATIO = 0.05, 4.0
+#: Bounds of a width ratio of ordered lobes.
+RATIO_BOUNDS = (1.0, 100.0)
+#: The data-driven start's candidate widths: the first lobe at these factors of the peak's half
+#: width, each next lobe these ratios wider than the previous one.
+WIDTH_FACTORS, WIDTH_RATIOS = (0.4, 0.7, 1.0, 1.5, 2.5, 4.0), (3.0, 6.0, 12.0)
+#: The data-driven start's candidate Schlick F0.
+F0_CANDIDATES = (0.04, 0.25, 0.9)
+#: Rows a single large table's start is read from (a fixed random subset).
+MAX_ROWS = 4096
+
+
+@dataclass(frozen=True)
+class Lobe:
+    """One microfacet lobe of a composed family (:func:`~matfit.fitting.compose_family`).
+
+    Parameters
+    ----------
+    distribution : {"ggx", "beckmann", "blinn_phong"}, default "ggx"
+        The microfacet distribution.
+    fresnel : {"schlick", "dielectric", "conductor"}, default "schlick"
+        The lobe's Fresnel term (:class:`~matfit.models.SpecularLobe`).
+    masking : {"separable", "height_correlated"}, default "separable"
+        Smith masking form.
+
+    Examples
+    --------
+    >>> from matfit.fitting import Lobe
+    >>> Lobe("beckmann", fresnel="conductor").fresnel
+    'conductor'
+    """
+
+    distribution: str = "ggx"
+    fresnel: str = "schlick"
+    masking: str = "separable"
+
+    def __post_init__(self):
+        for name, value, choices in (("distribution", self.distribution, tuple(DISTRIBUTIONS)),
+                                     ("fresnel", self.fresnel, FRESNEL_KINDS), ("masking", self.masking, MASKING_FORMS)):
+            if not isinstance(value, str) or value not in choices:
+                raise ParameterError(f"Lobe: {name} must be one of {list(choices)}, got {value!r}")
+
+    @property
+    def alpha_upper(self) -> float:
+        """The largest width a fit gives the lobe: 1 for Blinn-Phong (its exponent is negative
+        beyond), 1.5 otherwise."""
+        return 1.0 if self.distribution == "blinn_phong" else 1.5
+
+    @property
+    def fresnel_params(self) -> tuple:
+        """The Fresnel parameters of the lobe: ``("f0",)``, ``("eta",)`` or ``("eta", "k")``."""
+        return {"schlick": ("f0",), "dielectric": ("eta",), "conductor": ("eta", "k")}[self.fresnel]
+
+
+@dataclass(frozen=True)
+class Slot:
+    """One parameter of a composed family: what a :class:`~matfit.fitting.Param` is made from.
+
+    Parameters
+    ----------
+    name : str
+        The parameter's name.
+    kind : str
+        ``"albedo"``, ``"alpha"``, ``"ratio"``, ``"ks"``, ``"mix"``, ``"f0"``, ``"eta"`` or ``"k"``.
+    lobes : tuple of int
+        The lobes (0-based) that read it (empty for the albedo).
+    lower, upper : float
+        Bounds.
+    per_channel : bool
+        Whether it has a colour-channel axis.
+    doc : str
+        One line for reports.
+    generic : float
+        The generic start.
+
+    Examples
+    --------
+    >>> from matfit.fitting._compose import Lobe, lobe_layout
+    >>> [s.name for s in lobe_layout("lambert", (Lobe(), Lobe()), "channels", True, ("f0",), ())]
+    ['albedo', 'alpha_1', 'ks_1', 'f0', 'ratio_2', 'ks_2']
+    """
+
+    name: str
+    kind: str
+    lobes: tuple
+    lower: float
+    upper: float
+    per_channel: bool
+    doc: str
+    generic: float
+
+
+def _fresnel_slot(kind, lobe, fresnel, per_channel, name, lobes):
+    if kind == "f0":
+        return Slot(name, kind, lobes, 0.0, 1.0, per_channel, "Schlick F0 (normal-incidence reflectance)", 0.04)
+    if kind == "eta" and fresnel == "dielectric":
+        return Slot(name, kind, lobes, 1.01, 4.0, per_channel, "dielectric index", 1.5)
+    if kind == "eta":
+        return Slot(name, kind, lobes, 0.05, 8.0, per_channel, "conductor real index", 1.0)
+    return Slot(name, kind, lobes, 0.0, 12.0, per_channel, "conductor extinction", 3.0)
+
+
+def lobe_layout(base, lobes, weights, ordered, share, tied):
+    """The parameters of a composed family, in the order of the unconstrained vector.
+
+    Parameters
+    ----------
+    base : {"lambert", None}
+        A Lambertian base (an ``albedo`` per channel), or none.
+    lobes : sequence of Lobe
+        The lobes.
+    weights : {"channels", "mixture", "none"}
+        How the lobes are weighted (:data:`WEIGHT_MODES`).
+    ordered : bool
+        Widths ordered from narrow to wide (``ratio_j`` parameters).
+    share : sequence of str
+        Fresnel parameters shared by the lobes (:data:`SHAREABLE`).
+    tied : sequence of str
+        Per-channel parameters made one value for every channel.
+
+    Returns
+    -------
+    tuple of Slot
+
+    Raises
+    ------
+    matfit.ParameterError
+        For an unknown option, or a shared parameter of lobes with different Fresnel terms.
+
+    Examples
+    --------
+    >>> from matfit.fitting._compose import Lobe, lobe_layout
+    >>> [s.name for s in lobe_layout(None, (Lobe(fresnel="conductor"),) * 2, "mixture", True, ("eta", "k"), ())]
+    ['alpha_1', 'eta', 'k', 'ratio_2', 'mix_2']
+    """
+    owner = "compose_family"
+    if base not in ("lambert", None):
+        raise ParameterError(f"{owner}: base must be 'lambert' or None, got {base!r}")
+    if weights not in WEIGHT_MODES:
+        raise ParameterError(f"{owner}: weights must be one of {list(WEIGHT_MODES)}, got {weights!r}")
+    for n in share:
+        if n not in SHAREABLE:
+            raise ParameterError(f"{owner}: share takes Fresnel parameter names {list(SHAREABLE)}, got {n!r}")
+        users = [i + 1 for i, lb in enumerate(lobes) if n in lb.fresnel_params]
+        kinds = {lb.fresnel for lb in lobes if n in lb.fresnel_params}
+        if not kinds:
+            raise ParameterError(f"{owner}: share {n!r}: no lobe has that parameter")
+        if len(users) == 1 and len(lobes) > 1:
+            # sharing is between lobes: with several lobes and one user it is a mistake
+            raise ParameterError(f"{owner}: share {n!r}: only lobe {users[0]} has that parameter, there is nothing "
+                                 f"to share it with")
+        if len(kinds) > 1:
+            raise ParameterError(f"{owner}: share {n!r}: the lobes that have it must have the same Fresnel term, "
+                                 f"found {sorted(kinds)}")
+    slots = []
+    if base == "lambert":
+        slots.append(Slot("albedo", "albedo", (), 0.0, 1.0, True, "diffuse albedo", 0.5))
+    done = set()
+    for j, lb in enumerate(lobes):
+        i = j + 1
+        if j == 0 or not ordered:
+            generic = min(GENERIC_ALPHA * GENERIC_RATIO**j, 0.9 * lb.alpha_upper)
+            slots.append(Slot(f"alpha_{i}", "alpha", (j,), 1e-3, lb.alpha_upper, False,
+                              f"lobe {i} {lb.distribution} width", generic))
+        else:
+            slots.append(Slot(f"ratio_{i}", "ratio", (j,), *RATIO_BOUNDS, False, f"alpha_{i} / alpha_{i - 1}",
+                              GENERIC_RATIO))
+        if weights == "channels":
+            slots.append(Slot(f"ks_{i}", "ks", (j,), 0.0, 1.0, True, f"lobe {i} weight", 0.5))
+        elif weights == "mixture" and j > 0:
+            slots.append(Slot(f"mix_{i}", "mix", (j,), 0.0, 1.0, False, f"lobe {i}'s share of lobes 1..{i}", 0.3))
+        for kind in lb.fresnel_params:
+            # the weight carries a Schlick lobe's colour when there is one (Löw's k_s): F0 is one value then
+            per_channel = {"f0": weights != "channels", "eta": lb.fresnel == "conductor", "k": True}[kind]
+            if kind in share:
+                if kind in done:
+                    continue
+                done.add(kind)
+                name, users = kind, tuple(m for m, other in enumerate(lobes) if kind in other.fresnel_params)
+            else:
+                name, users = f"{kind}_{i}", (j,)
+            slots.append(_fresnel_slot(kind, lb, lb.fresnel, per_channel, name, users))
+    names = [s.name for s in slots]
+    for n in tied:
+        if n not in names:
+            raise ParameterError(f"{owner}: tied names {n!r}, which is not a parameter; the parameters are {names}")
+    return tuple(Slot(s.name, s.kind, s.lobes, s.lower, s.upper, s.per_channel and s.name not in tied, s.doc, s.generic)
+                 for s in slots)
+
+
+def _k_from_reflectance(r0):
+    """``k`` of a conductor with ``eta = 1`` and normal-incidence reflectance ``r0``:
+    ``F(1) = k^2 / (4 + k^2)``."""
+    r0 = np.clip(r0, 0.02, 0.95)
+    return 2 * np.sqrt(r0 / (1 - r0))
+
+
+def _eta_from_reflectance(r0):
+    """The dielectric index of normal-incidence reflectance ``r0``."""
+    s = np.sqrt(np.clip(r0, 1e-4, 0.3))
+    return (1 + s) / (1 - s)
+
+
+@dataclass(frozen=True)
+class LobeSpec:
+    """Everything a composed family knows: its base, lobes, weights, ordering, parameter layout
+    and the values it holds fixed; builds the model and refines the data-driven start.
+
+    Parameters
+    ----------
+    base : {"lambert", None}
+        The base.
+    lobes : tuple of Lobe
+        The lobes.
+    weights : {"channels", "mixture", "none"}
+        How the lobes are weighted.
+    ordered : bool
+        Widths through ratios (narrow to wide).
+    slots : tuple of Slot
+        Every parameter (the fixed ones included).
+    fixed : tuple
+        ``(name, values)`` pairs of the parameters held fixed (values a tuple of floats).
+
+    Examples
+    --------
+    >>> from matfit.fitting import get_family
+    >>> type(get_family("lobes2").build).__name__
+    'LobeSpec'
+    """
+
+    base: Optional[str]
+    lobes: tuple
+    weights: str
+    ordered: bool
+    slots: tuple
+    fixed: tuple = ()
+
+    def _slot(self, kind, j):
+        return next(s for s in self.slots if s.kind == kind and j in s.lobes)
+
+    def lobe_names(self, j):
+        """The names of the parameters lobe ``j`` (0-based) reads, as a dict ``{kind: name}``:
+        ``"width"`` (``alpha_j``, or ``ratio_j`` of an ordered lobe after the first), ``"ks"`` or
+        ``"mix"`` (its weight, when it has a parameter of its own) and its Fresnel parameters
+        (``"f0"``, ``"eta"``, ``"k"``; a shared one has no suffix).
+
+        Examples
+        --------
+        >>> from matfit.fitting import get_family
+        >>> get_family("lobes2").build.lobe_names(1)
+        {'width': 'ratio_2', 'ks': 'ks_2', 'f0': 'f0'}
+        """
+        width = "ratio" if (self.ordered and j > 0) else "alpha"
+        out = {"width": self._slot(width, j).name}
+        if self.weights == "channels":
+            out["ks"] = self._slot("ks", j).name
+        elif self.weights == "mixture" and j > 0:
+            out["mix"] = self._slot("mix", j).name
+        for kind in self.lobes[j].fresnel_params:
+            out[kind] = self._slot(kind, j).name
+        return out
+
+    def widths(self, values):
+        """The list of the lobes' widths from a mapping ``values`` of parameter name to value
+        (the fixed ones may be left out): ratios multiplied out, an ordered Blinn-Phong lobe
+        capped at 1 (its exponent is negative beyond).
+
+        Examples
+        --------
+        >>> from matfit.fitting import get_family
+        >>> [round(float(a), 6) for a in get_family("lobes3").build.widths({"alpha_1": 0.05, "ratio_2": 4.0, "ratio_3": 2.0})]
+        [0.05, 0.2, 0.4]
+        """
+        p = {**{n: jnp.asarray(v) for n, v in self.fixed}, **values}
+        out = []
+        for j, lb in enumerate(self.lobes):
+            names = self.lobe_names(j)
+            a = p[names["width"]] * out[-1] if (self.ordered and j > 0) else p[names["width"]]
+            out.append(jnp.minimum(a, 1.0) if lb.distribution == "blinn_phong" and self.ordered and j > 0 else a)
+        return out
+
+    def lobe_weights(self, values):
+        """The list of the lobes' weights from a mapping ``values`` of parameter name to value:
+        ``ks_j`` (weights per channel), the stick-breaking weights of ``mix_j`` (a mixture: lobe
+        j takes the share ``mix_j`` of lobes 1..j, so that the weights sum to 1), or 1.
+
+        Examples
+        --------
+        >>> from matfit.fitting import get_family
+        >>> [round(float(w), 6) for w in get_family("metal2").build.lobe_weights({"mix_2": 0.25})]
+        [0.75, 0.25]
+        """
+        p = {**{n: jnp.asarray(v) for n, v in self.fixed}, **values}
+        K = len(self.lobes)
+        if self.weights == "channels":
+            return [p[self.lobe_names(j)["ks"]] for j in range(K)]
+        if self.weights == "none":
+            return [1.0] * K
+        out, rest = [None] * K, 1.0
+        for j in range(K - 1, 0, -1):
+            m = p[self.lobe_names(j)["mix"]]
+            out[j] = m * rest
+            rest = rest * (1 - m)
+        out[0] = rest
+        return out
+
+    def __call__(self, values, C):
+        """The :class:`~matfit.models.MultiLobe` of the parameters' values (the family's build).
+
+        Parameters
+        ----------
+        values : mapping
+            Every free parameter's value (per-channel ones ``(C,)``).
+        C : int
+            Number of colour channels.
+
+        Returns
+        -------
+        MultiLobe
+
+        Examples
+        --------
+        >>> from matfit.fitting import get_family
+        >>> m = get_family("lobes1").build({"albedo": 0.5, "alpha_1": 0.1, "ks_1": 0.9, "f0": 0.04}, 1)
+        >>> type(m).__name__, len(m.lobes)
+        ('MultiLobe', 1)
+        """
+        p = {**{n: jnp.asarray(v) for n, v in self.fixed}, **values}
+        alphas, weights = self.widths(p), self.lobe_weights(p)
+        lobes = []
+        for j, lb in enumerate(self.lobes):
+            names = self.lobe_names(j)
+            fres = {kind: p[names[kind]] for kind in lb.fresnel_params}
+            w = weights[j]
+            lobes.append(SpecularLobe(alphas[j], lb.fresnel, w if self.weights == "channels" else jnp.asarray(w)[..., None],
+                                      distribution=lb.distribution, masking=lb.masking, **fres))
+        albedo = p["albedo"] if self.base == "lambert" else 0.0
+        return MultiLobe(albedo, lobes)
+
+    # ---------------------------------------------------------------------------------------------
+    # The data-driven start
+    # ---------------------------------------------------------------------------------------------
+    def refine(self, WO, WI, V, M, guess, family) -> None:
+        """The family's data-driven start (its :attr:`~matfit.fitting.Family.refine` hook).
+
+        For every candidate of a small grid (the first lobe's width at :data:`WIDTH_FACTORS` of
+        the peak's half width ``guess["alpha"]``, each next lobe :data:`WIDTH_RATIOS` times
+        wider; a Schlick lobe's F0 at :data:`F0_CANDIDATES`), the diffuse albedo and the lobes' amplitudes per channel
+        solve a non-negative weighted least-squares problem on the table's rows (the diffuse
+        level read where the lobes are small, the lobes' heights near the mirror direction;
+        weights ``1 / (f + median f)^2``, relative near the peak and absolute in the tail). The
+        candidate with the smallest residual gives every parameter's start: widths, amplitudes
+        (the weights ``ks_j``, the mixture shares, or the Fresnel level where the lobes are not
+        weighted) and the Fresnel parameters (a conductor's ``k`` at ``eta = 1`` from its
+        normal-incidence reflectance).
+
+        Parameters
+        ----------
+        WO, WI : numpy.ndarray (B, N, 3)
+            Directions of a stack of tables.
+        V : numpy.ndarray (B, N, C)
+            Values.
+        M : numpy.ndarray of bool (B, N)
+            Valid rows.
+        guess : dict
+            The generic guess (``guess["alpha"]``: the peak's half width per table); updated in
+            place with every parameter of the family that is not a constant start.
+        family : Family
+            The family (its parameters' bounds and constant starts).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from matfit import Table
+        >>> from matfit.fitting import Parametrization, initial_guess
+        >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8], [0.0, -0.6, 0.8]])
+        >>> t = Table(wo=wo, wi=wo[[0, 3, 1, 2]], values=np.full((4, 3), 0.3 / np.pi))
+        >>> g = initial_guess(t, Parametrization("lobes1", 3))
+        >>> [round(float(a), 2) for a in g["albedo"]]  # a Lambertian table: the diffuse level
+        [0.3, 0.3, 0.3]
+        """
+        B, N, C = V.shape
+        if B == 1 and N > MAX_ROWS:  # a large table: a fixed random subset of its valid rows
+            rows = np.flatnonzero(M[0])
+            if rows.size > MAX_ROWS:
+                rows = np.sort(np.random.default_rng(0).choice(rows, MAX_ROWS, replace=False))
+            WO, WI, V, M = WO[:, rows], WI[:, rows], V[:, rows], M[:, rows]
+            N = V.shape[1]  # the subset's rows: the shapes below are the subset's
+        V = np.asarray(V, float)
+        ok = M & (WO[..., 2] > 1e-3) & (WI[..., 2] > 1e-3) & np.all(np.isfinite(V), axis=-1)
+        y = np.where(ok[..., None], V, 0.0)
+        ybar = y.mean(axis=-1)
+        med = np.array([np.median(ybar[b][ok[b]]) if ok[b].any() else 0.0 for b in range(B)])
+        W = np.where(ok, 1.0 / (ybar + med[:, None] + 1e-12) ** 2, 0.0)  # (B, N)
+        h = WO + WI
+        h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-12)
+        cos_d = np.clip(np.sum(WO * h, axis=-1), 0.0, 1.0)
+        fixed = {n: np.asarray(v, float) for n, v in self.fixed}
+        free = {p.name for p in family.params} - set(family.starts)
+        bounds = {p.name: (p.lower, p.upper) for p in family.params}
+
+        diffuse_known = None
+        if self.base == "lambert" and "albedo" in fixed:
+            diffuse_known = np.broadcast_to(fixed["albedo"], (C,))
+        if self.base is None:
+            diffuse_known = np.zeros(C)
+        target = y - (0.0 if diffuse_known is None else np.where(ok[..., None], diffuse_known / np.pi, 0.0))
+
+        alpha0 = np.asarray(guess.get("alpha", np.full(B, 0.1)), float).reshape(B)
+        K = len(self.lobes)
+        cands, xs, ress = [], [], []
+        width_sets = self._width_candidates(alpha0, fixed)
+        # D G2 / (4 cos cos) of every lobe at every candidate width: (G, B, N) per lobe
+        dgs = [self._microfacet_factor(WO, WI, np.stack([ws[j] for ws in width_sets]), j) for j in range(K)]
+        for g, width_set in enumerate(width_sets):
+            dg = [d[g] for d in dgs]
+            for level in self._fresnel_candidates(fixed):
+                cols = [] if diffuse_known is not None else [np.broadcast_to(np.where(ok, 1 / np.pi, 0.0)[..., None],
+                                                                             (B, N, C))]
+                cols += [dg[j][..., None] * self._fresnel_basis(j, level, cos_d, C) for j in range(K)]
+                x, res = _nnls_channels(np.stack(cols, axis=-1), target, W)  # columns (B, N, C, P)
+                cands.append((width_set, level))
+                xs.append(x)
+                ress.append(res)
+        pick = np.argmin(np.stack(ress, axis=1), axis=1)  # the best candidate per table
+        x = np.stack(xs, axis=1)[np.arange(B), pick]  # (B, C, P)
+        width_set = [np.array([cands[g][0][j][b] for b, g in enumerate(pick)]) for j in range(K)]
+        level = {n: np.array([float(cands[g][1][n]) for g in pick]) for n in cands[0][1]}
+        off = 0 if diffuse_known is not None else 1
+        amps = [x[..., off + j] for j in range(K)]  # (B, C) each
+        out = {}
+        if off:
+            out["albedo"] = x[..., 0]
+        # widths
+        for j in range(K):
+            name = self.lobe_names(j)["width"]
+            out[name] = width_set[j] / width_set[j - 1] if (self.ordered and j > 0) else width_set[j]
+        # amplitudes -> weights and Fresnel levels
+        levels = self._levels_from_amplitudes(amps, level, C, B)
+        if self.weights == "channels":
+            for j in range(K):
+                out[self.lobe_names(j)["ks"]] = levels["ks"][j]
+        elif self.weights == "mixture":
+            shares = np.stack([a.sum(axis=-1) for a in amps], axis=-1)  # (B, K)
+            shares = shares / np.maximum(shares.sum(axis=-1, keepdims=True), 1e-12)
+            shares = np.where(np.all(shares == 0, axis=-1, keepdims=True), 1.0 / K, shares)
+            rest = np.ones(B)
+            for j in range(K - 1, 0, -1):
+                # stick-breaking backwards: lobe j's share of lobes 1..j
+                out[self.lobe_names(j)["mix"]] = np.clip(shares[:, j] / np.maximum(rest, 1e-12), 0, 1)
+                rest = rest - shares[:, j]
+        for j, lb in enumerate(self.lobes):
+            for kind in lb.fresnel_params:
+                name = self.lobe_names(j)[kind]
+                val = levels[kind][j]
+                out.setdefault(name, []).append(val)
+        by_name = {s.name: s for s in self.slots}
+        for name, val in out.items():
+            if name not in free:
+                continue
+            if isinstance(val, list):  # a Fresnel parameter of one or several lobes: their mean
+                val = np.mean(np.stack(val), axis=0)
+            val = np.asarray(val, float)
+            if by_name[name].per_channel:
+                val = np.broadcast_to(val.reshape((B, -1)), (B, C)).copy()
+            else:
+                val = val.reshape((B, -1)).mean(axis=1)
+            lo, hi = bounds[name]
+            guess[name] = np.clip(val, lo, hi)
+
+    def _width_candidates(self, alpha0, fixed):
+        """Candidate widths of every lobe: ``[(B,) per lobe]`` per candidate."""
+        out = []
+        for m1 in WIDTH_FACTORS:
+            for ratio in WIDTH_RATIOS:
+                ws = []
+                for j, lb in enumerate(self.lobes):
+                    name = self.lobe_names(j)["width"]
+                    if name in fixed:
+                        a = float(fixed[name]) * (ws[-1] if (self.ordered and j > 0) else 1.0)
+                    elif j == 0:
+                        a = np.clip(alpha0 * m1, 2e-3, 0.9 * lb.alpha_upper)
+                    else:
+                        a = ws[-1] * ratio
+                    ws.append(np.minimum(np.broadcast_to(a, alpha0.shape), lb.alpha_upper))
+                out.append(ws)
+        return out
+
+    def _fresnel_candidates(self, fixed):
+        """Candidate Fresnel levels: dicts ``{parameter name: value}``, one per candidate."""
+        f0_names = sorted({self.lobe_names(j)["f0"] for j, lb in enumerate(self.lobes) if lb.fresnel == "schlick"})
+        free_f0 = [n for n in f0_names if n not in fixed]
+        if not free_f0:
+            return [{}]
+        return [{n: np.asarray(v) for n in free_f0} for v in F0_CANDIDATES]
+
+    def _fresnel_basis(self, j, level, cos_d, C):
+        """Lobe ``j``'s Fresnel factor of the basis, ``(B, N, C)``: Schlick's of the candidate (or
+        fixed) F0, the dielectric Fresnel of the fixed index or 1.5, and 1 for a conductor (its
+        level is the amplitude)."""
+        lb = self.lobes[j]
+        names = self.lobe_names(j)
+        fixed = dict(self.fixed)
+        if lb.fresnel == "schlick":
+            f0 = np.asarray(level[names["f0"]] if names["f0"] in level else fixed.get(names["f0"], 0.04), float)
+            F = f0 + (1 - f0) * (1 - cos_d[..., None]) ** 5
+        elif lb.fresnel == "dielectric":
+            eta = np.asarray(fixed.get(names["eta"], 1.5), float)
+            F = np.asarray(fresnel_dielectric(jnp.asarray(cos_d[..., None]), jnp.asarray(eta)), float)
+        else:
+            F = np.ones(cos_d.shape + (1,))
+        return np.broadcast_to(F, cos_d.shape + (C,))
+
+    def _levels_from_amplitudes(self, amps, level, C, B):
+        """The weights and Fresnel parameters of the lobes from their amplitudes ``(B, C)``."""
+        fixed = dict(self.fixed)
+        K = len(self.lobes)
+        total = sum(amps)  # (B, C)
+        out = {"ks": [None] * K, "f0": [None] * K, "eta": [None] * K, "k": [None] * K}
+        for j, lb in enumerate(self.lobes):
+            names = self.lobe_names(j)
+            a = amps[j]
+            # the Fresnel level a lobe's amplitude stands for: its own (weights none), the
+            # lobes' total (a mixture), or none (per-channel weights carry it)
+            scale = {"channels": None, "mixture": total, "none": a}[self.weights]
+            if lb.fresnel == "schlick":
+                f0 = np.asarray(level.get(names["f0"], fixed.get(names["f0"], 0.04)), float)
+                f0 = np.broadcast_to(f0.reshape((B, -1)) if f0.ndim else f0, (B, C))
+                out["f0"][j] = f0 if scale is None else np.clip(scale * f0, 0.005, 0.99)
+                out["ks"][j] = a
+            elif lb.fresnel == "dielectric":
+                eta = float(np.mean(fixed.get(names["eta"], 1.5)))
+                r0 = ((eta - 1) / (eta + 1)) ** 2
+                out["eta"][j] = np.full((B, C), eta) if scale is None else _eta_from_reflectance(scale * r0)
+                out["ks"][j] = a
+            else:
+                r0 = a / 0.9 if scale is None else scale
+                out["eta"][j] = np.ones((B, C))
+                out["k"][j] = _k_from_reflectance(r0)
+                out["ks"][j] = np.full((B, C), 0.9) if scale is None else a
+        return out
+
+    def _microfacet_factor(self, WO, WI, alpha, j):
+        """``D G2 / (4 cos cos)`` of lobe ``j`` at the widths ``alpha`` (G, B) on the rows: (G, B, N),
+        in chunks of candidates (a texel map's stack of tables holds many rows)."""
+        lb = self.lobes[j]
+        G, B = alpha.shape
+        step = max(1, int(2**21 // max(WO.shape[0] * WO.shape[1], 1)))
+        out = [np.asarray(_lobe_factor(jnp.asarray(alpha[g:g + step, :, None]), jnp.asarray(WO[None]),
+                                       jnp.asarray(WI[None]), lb.distribution, lb.masking), float)
+               for g in range(0, G, step)]
+        return np.concatenate(out)
+
+
+@functools.partial(jax.jit, static_argnums=(3, 4))
+def _lobe_factor(alpha, wo, wi, distribution, masking):
+    """The Fresnel-free lobe of widths ``alpha`` (G, B, 1) on directions (1, B, N, 3)."""
+    lobe = SpecularLobe(alpha, "schlick", 1.0, f0=1.0, distribution=distribution, masking=masking)
+    return lobe.eval_pairs(SoAPairs.of(wo, wi))[..., 0]
+
+
+def _nnls_channels(A, y, W):
+    """Non-negative weighted least squares per table and channel (two active-set passes).
+
+    ``A`` (B, N, C, P), ``y`` (B, N, C), ``W`` (B, N): returns the amplitudes ``x`` (B, C, P) and
+    the weighted residual summed over the channels (B,)."""
+    P = A.shape[-1]
+    G = np.einsum("bn,bncp,bncq->bcpq", W, A, A)
+    r = np.einsum("bn,bncp,bnc->bcp", W, A, y)
+    scale = np.maximum(np.einsum("bcpp->bcp", G), 1e-300)
+    eye = np.eye(P)
+    active = np.ones(G.shape[:-1], bool)
+    x = np.zeros(r.shape)
+    for _ in range(3):
+        mask = active[..., :, None] & active[..., None, :]
+        Gm = np.where(mask, G, 0.0) + np.where(active, 0.0, 1.0)[..., None] * eye + 1e-10 * scale[..., None] * eye
+        x = np.linalg.solve(Gm, np.where(active, r, 0.0)[..., None])[..., 0]
+        x = np.where(active, x, 0.0)
+        if np.all(x >= 0):
+            break
+        active = active & (x > 0)
+    x = np.maximum(x, 0.0)
+    res = np.einsum("bn,bnc->b", W, (y - np.einsum("bncp,bcp->bnc", A, x)) ** 2)
+    return x, res
+
+
+@dataclass(frozen=True)
+class LobeRefine:
+    """The :attr:`~matfit.fitting.Family.refine` hook of a composed family: :meth:`LobeSpec.refine`
+    as a value (two families composed alike compare equal, hooks included).
+
+    Parameters
+    ----------
+    spec : LobeSpec
+        The family's specification.
+
+    Examples
+    --------
+    >>> from matfit.fitting import get_family
+    >>> type(get_family("lobes2").refine).__name__
+    'LobeRefine'
+    """
+
+    spec: LobeSpec
+
+    def __call__(self, WO, WI, V, M, guess, family) -> None:
+        """Refine ``guess`` in place (:meth:`LobeSpec.refine`).
+
+        Parameters
+        ----------
+        WO, WI, V, M, guess, family
+            As for :meth:`LobeSpec.refine`.
+
+        Examples
+        --------
+        >>> from matfit.fitting import get_family
+        >>> callable(get_family("lobes1").refine)
+        True
+        """
+        self.spec.refine(WO, WI, V, M, guess, family)

@@ -1,0 +1,358 @@
+r"""Multi-lobe reflection: a Lambertian base plus a sum of weighted microfacet lobes.
+
+Measured materials often show more than one specular scale: a sharp highlight over a wide haze
+(brushed or sand-blasted finishes, plastics with a dust layer, satin paints), a metal whose
+roughness has two scales. :class:`MultiLobe` adds K microfacet lobes (:class:`SpecularLobe`) to a
+Lambertian base,
+
+.. math::
+    f(\omega_o, \omega_i) = \frac{\rho}{\pi} + \sum_{j=1}^{K} w_j\,F_j(\omega_o\cdot\omega_h)\,
+        \frac{D_j(\omega_h)\,G_{2,j}(\omega_o, \omega_i, \omega_h)}{4\cos\theta_o\cos\theta_i}
+
+for :math:`\cos\theta_o, \cos\theta_i > 0` (``COS_EPS``), else 0. Each lobe has its own
+distribution (GGX, Beckmann, normalized Blinn-Phong), width, masking form and Fresnel term:
+
+- ``"schlick"``: :math:`F = F_0 + (1 - F_0)(1 - c)^5`, :math:`F_0` per channel;
+- ``"dielectric"``: the exact dielectric Fresnel of a relative index :math:`\eta`;
+- ``"conductor"``: the exact conductor Fresnel of a complex index :math:`\eta + ik` per channel;
+
+and a per-channel weight :math:`w_j` (the ``k_s`` of Cook-Torrance fits, Löw et al. 2012, Ngan
+et al. 2005: ``w_j = k_s`` with a Schlick or dielectric Fresnel gives a coloured or white
+specular lobe; ``w_j = 1`` with a conductor Fresnel is the rough conductor). The terms are added,
+not coupled (as in :class:`~matfit.models.DiffuseSpecular`): a lobe with ``F <= 1`` reflects at
+most ``w_j`` of the light, so the directional albedo is at most :math:`\rho + \sum_j w_j` per
+channel, and at most 1 when that sum is.
+
+Sampling: one-sample MIS over the components. The cosine-weighted hemisphere is chosen with a
+probability proportional to :math:`\bar\rho` (the channel mean of the albedo), lobe ``j`` with
+one proportional to its reflectance estimate :meth:`SpecularLobe.reflectance_estimate`,
+:math:`\bar w_j (F_j(1) + (1 - F_j(1))/21)` (the cosine-weighted hemispherical average of
+Schlick's curve through the lobe's normal-incidence reflectance); equal probabilities when all
+are 0. The lobe's sample is its visible normal (or D cos) reflected about ``wo``; the pdf is the
+exact mixture.
+
+References
+----------
+- R. L. Cook, K. E. Torrance, "A Reflectance Model for Computer Graphics", ToG 1(1), 1982.
+- A. Ngan, F. Durand, W. Matusik, "Experimental Analysis of BRDF Models", EGSR 2005 (two-lobe fits).
+- J. Löw, J. Kronander, A. Ynnerman, J. Unger, "BRDF Models for Accurate and Efficient
+  Rendering of Glossy Surfaces", ToG 31(1), 2012.
+- C. Schlick, "An Inexpensive BRDF Model for Physically-based Rendering", CGF 13(3), 1994.
+"""
+
+from __future__ import annotations
+
+from typing import Optional
+
+import equinox as eqx
+import jax.numpy as jnp
+
+from .._math import COS_EPS, cosine_hemisphere, normalize, safe_div
+from ..errors import ParameterError
+from ..fresnel import fresnel_conductor, fresnel_dielectric, fresnel_schlick
+from ._base import AbstractBSDF
+from ._microfacet import AbstractMicrofacetBSDF
+from ._pairs import SoAPairs
+from ._params import (as_channels, channel_count, check_channels, check_choice, check_complex_index, check_directions,
+                      check_range, check_u)
+from .lambert import cosine_pdf
+
+__all__ = ["SpecularLobe", "MultiLobe", "FRESNEL_KINDS"]
+
+#: The Fresnel terms a :class:`SpecularLobe` takes.
+FRESNEL_KINDS = ("schlick", "dielectric", "conductor")
+
+#: Cosine-weighted hemispherical average of Schlick's (1 - c)^5: 2 int_0^1 (1 - c)^5 c dc = 1/21.
+_SCHLICK_AVERAGE = 1.0 / 21.0
+
+
+class SpecularLobe(AbstractMicrofacetBSDF):
+    r"""One weighted microfacet reflection lobe ``w F D G2 / (4 cos cos)``, a model on its own
+    and the component of :class:`MultiLobe`.
+
+    The distribution options (``alpha``, ``alpha_y``, ``distribution``, ``masking``,
+    ``sampling``) are those of :class:`~matfit.models.RoughConductor`, whose lobe this is.
+
+    Parameters
+    ----------
+    alpha : array_like, scalar or (...), default 0.2; >= 0; differentiable
+        The lobe's own GGX, Beckmann or Blinn-Phong alpha (along x when ``alpha_y`` is given).
+    alpha_y : array_like or None, scalar or (...), default None; >= 0 or None; differentiable
+        The lobe's alpha along y (anisotropic), or None for an isotropic lobe.
+    fresnel : {"schlick", "dielectric", "conductor"}, default "schlick"; static, not differentiable
+        The Fresnel term: Schlick's curve of ``f0``, the exact dielectric Fresnel of ``eta``, or
+        the exact conductor Fresnel of ``eta + i k``.
+    weight : array_like, scalar or (..., C), default 1.0; >= 0; differentiable
+        The lobe's weight :math:`w` per colour channel (a Cook-Torrance ``k_s``).
+    f0 : array_like or None, scalar or (..., C), default None; [0, 1] or None; differentiable
+        Normal-incidence reflectance :math:`F_0` of a Schlick lobe, per channel (None: 0.04);
+        only for ``fresnel="schlick"``.
+    eta : array_like or None, scalar or (..., C), default None; > 0 or None; differentiable
+        Relative index of a dielectric lobe (None: 1.5), or real part of a conductor's complex
+        index (required), per channel; not for ``fresnel="schlick"``.
+    k : array_like or None, scalar or (..., C), default None; >= 0 or None; differentiable
+        Extinction coefficient of a conductor lobe, per channel (required); only for
+        ``fresnel="conductor"``.
+    distribution : {"ggx", "beckmann", "blinn_phong"}, default "ggx"; static, not differentiable
+        Which distribution of normals the lobe has (``alpha <= 1`` for Blinn-Phong).
+    masking : {"separable", "height_correlated"}, default "separable"; static, not differentiable
+        The form of its Smith masking-shadowing term.
+    sampling : {"visible", "dcos"}, default "visible"; static, not differentiable
+        Its normals drawn from those visible from ``wo`` or from D cos (always D cos for
+        Blinn-Phong).
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit.models import RoughConductor, SpecularLobe
+    >>> eta, k = jnp.array([0.143, 0.374, 1.442]), jnp.array([3.983, 2.385, 1.603])
+    >>> lobe = SpecularLobe(0.2, "conductor", eta=eta, k=k)
+    >>> wo = jnp.array([0.0, 0.6, 0.8]); wi = jnp.array([0.0, -0.6, 0.8])
+    >>> bool(jnp.allclose(lobe.eval(wo, wi), RoughConductor(0.2, eta, k).eval(wo, wi)))
+    True
+    """
+
+    weight: jnp.ndarray
+    f0: Optional[jnp.ndarray]
+    eta: Optional[jnp.ndarray]
+    k: Optional[jnp.ndarray]
+    fresnel: str = eqx.field(static=True)
+
+    def __init__(self, alpha=0.2, fresnel="schlick", weight=1.0, f0=None, eta=None, k=None, distribution="ggx",
+                 masking="separable", alpha_y=None, sampling="visible"):
+        owner = "SpecularLobe"
+        check_choice(owner, "fresnel", fresnel, FRESNEL_KINDS)
+        self._init_microfacet(owner, alpha, alpha_y, distribution, masking, sampling)
+        check_range(owner, "weight", weight, 0.0)
+        given = {n for n, v in (("f0", f0), ("eta", eta), ("k", k)) if v is not None}
+        takes = {"schlick": {"f0"}, "dielectric": {"eta"}, "conductor": {"eta", "k"}}[fresnel]
+        if given - takes:
+            raise ParameterError(f"{owner}: {', '.join(sorted(given - takes))} does not apply to a {fresnel!r} lobe "
+                                 f"(it takes {', '.join(sorted(takes))})")
+        if fresnel == "schlick":
+            f0 = 0.04 if f0 is None else f0
+            check_range(owner, "f0", f0, 0.0, 1.0)
+        elif fresnel == "dielectric":
+            eta = 1.5 if eta is None else eta
+            check_range(owner, "eta", eta, 0.0, lo_open=True)
+        else:
+            if eta is None or k is None:
+                raise ParameterError(f"{owner}: a 'conductor' lobe needs eta and k (its complex index)")
+            check_complex_index(owner, eta, k)
+        check_channels(owner, weight=weight, f0=f0, eta=eta, k=k)
+        self.fresnel = fresnel
+        self.weight = as_channels(weight)
+        self.f0 = None if f0 is None else as_channels(f0)
+        self.eta = None if eta is None else as_channels(eta)
+        self.k = None if k is None else as_channels(k)
+
+    pair_kernels = True
+
+    @property
+    def channels(self):
+        return channel_count(*(p for p in (self.weight, self.f0, self.eta, self.k) if p is not None))
+
+    def pdf(self, wo, wi):
+        check_directions("SpecularLobe.pdf", wo=wo, wi=wi)
+        return self.reflection_pdf(wo, wi)
+
+    def fresnel_term(self, pairs):
+        """The lobe's weighted Fresnel factor ``w F(wo . h)`` of prepared pairs
+        (:class:`~matfit.models.SoAPairs`), per channel: ``(..., C)``.
+
+        Parameters
+        ----------
+        pairs : SoAPairs
+            Reflection pairs, their Fresnel cosine ``cos_d = wo . h`` read.
+
+        Returns
+        -------
+        jax.Array
+            ``w F`` of the lobe's Fresnel kind, of shape ``(..., C)``.
+
+        Examples
+        --------
+        >>> from matfit.models import SoAPairs, SpecularLobe
+        >>> import jax.numpy as jnp
+        >>> up = jnp.array([[0.0, 0.0, 1.0]])  # normal incidence: w F0 = 0.5 * 0.04
+        >>> round(float(SpecularLobe(0.2, weight=0.5, f0=0.04).fresnel_term(SoAPairs.of(up, up))[0, 0]), 6)
+        0.02
+        """
+        if self.fresnel == "schlick":
+            F = fresnel_schlick(pairs.cos_d[..., None], self.f0)
+        elif self.fresnel == "dielectric":
+            F = fresnel_dielectric(pairs.cos_d[..., None], self.eta)
+        else:
+            F = fresnel_conductor(pairs.fresnel_angle().expand(), self.eta, self.k)
+        return self.weight * F
+
+    def normal_reflectance(self):
+        """The lobe's Fresnel term at normal incidence, ``F(1)`` per channel, without the weight:
+        ``f0`` for Schlick, else the exact dielectric or conductor Fresnel at ``cos = 1``.
+
+        Returns
+        -------
+        jax.Array
+            Shape ``(..., C)``.
+
+        Examples
+        --------
+        >>> from matfit.models import SpecularLobe
+        >>> round(float(SpecularLobe(0.2, "dielectric", eta=1.5).normal_reflectance()[0]), 6)  # (0.5/2.5)^2
+        0.04
+        """
+        if self.fresnel == "schlick":
+            return self.f0
+        if self.fresnel == "dielectric":
+            return fresnel_dielectric(jnp.ones((), self.eta.dtype), self.eta)
+        return fresnel_conductor(jnp.ones((), self.eta.dtype), self.eta, self.k)
+
+    def reflectance_estimate(self):
+        r"""A cheap estimate of the lobe's reflectance per channel, the weight of its sampling
+        probability in :class:`MultiLobe`: :math:`w\,(F(1) + (1 - F(1))/21)`, the
+        cosine-weighted hemispherical average of Schlick's curve through the normal-incidence
+        reflectance :math:`F(1)` times the weight (masking and the lobe's loss below the
+        horizon left out).
+
+        Returns
+        -------
+        jax.Array
+            The estimate per channel, ``(..., C)``: ``w`` for a lobe with ``F = 1``.
+
+        Examples
+        --------
+        >>> from matfit.models import SpecularLobe
+        >>> round(float(SpecularLobe(0.2, weight=0.7, f0=1.0).reflectance_estimate()[0]), 6)
+        0.7
+        """
+        r0 = self.normal_reflectance()
+        return self.weight * (r0 + (1 - r0) * _SCHLICK_AVERAGE)
+
+    def eval_pairs(self, pairs):
+        # D G2 / (4 cos cos) once per pair (0 where invalid); the weighted Fresnel per channel
+        return self.reflection_lobe(pairs)[..., None] * self.fresnel_term(pairs)
+
+    def eval(self, wo, wi):
+        check_directions("SpecularLobe.eval", wo=wo, wi=wi)
+        return self.eval_pairs(SoAPairs.of(wo, wi))
+
+    def sample(self, wo, u):
+        check_directions("SpecularLobe.sample", wo=wo)
+        check_u("SpecularLobe.sample", u, 3)
+        return _sampled(self, wo, self.reflection_sample(wo, u[..., 1:3]))
+
+
+class MultiLobe(AbstractBSDF):
+    r"""A Lambertian base plus a sum of weighted microfacet lobes (:class:`SpecularLobe`).
+
+    Parameters
+    ----------
+    albedo : array_like, scalar or (..., C); [0, 1]; differentiable
+        Diffuse albedo :math:`\rho` of the Lambertian base per colour channel, 0 for none (stored
+        as the field ``diffuse``: ``albedo(wo)`` is the directional-albedo method of every model).
+    lobes : sequence of SpecularLobe; one or more; differentiable (their array leaves)
+        The microfacet lobes, each with its own distribution, width, Fresnel term and weight;
+        channel counts equal to the albedo's, or 1.
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit.models import DiffuseSpecular, MultiLobe, SpecularLobe
+    >>> m = MultiLobe(jnp.array([0.5, 0.3, 0.2]), [SpecularLobe(0.05, weight=1.0, f0=0.04),
+    ...                                            SpecularLobe(0.4, weight=0.1, f0=0.04)])
+    >>> wo = jnp.array([0.0, 0.6, 0.8]); wi = jnp.array([0.0, -0.6, 0.8])
+    >>> m.eval(wo, wi).shape
+    (3,)
+    >>> one = MultiLobe(jnp.array([0.5, 0.3, 0.2]), [SpecularLobe(0.2, f0=0.04)])  # DiffuseSpecular's model
+    >>> bool(jnp.allclose(one.eval(wo, wi), DiffuseSpecular(jnp.array([0.5, 0.3, 0.2]), 0.04, 0.2).eval(wo, wi)))
+    True
+    """
+
+    diffuse: jnp.ndarray  # the albedo rho (``albedo`` is the method)
+    lobes: tuple
+
+    def __init__(self, albedo, lobes):
+        owner = "MultiLobe"
+        check_range(owner, "albedo", albedo, 0.0, 1.0)
+        if isinstance(lobes, SpecularLobe) or not isinstance(lobes, (list, tuple)):
+            raise ParameterError(f"{owner}: lobes must be a list or tuple of SpecularLobe, got {type(lobes).__name__}")
+        if not lobes:
+            raise ParameterError(f"{owner}: lobes must hold at least one SpecularLobe (a base alone is Lambert)")
+        for i, lobe in enumerate(lobes):
+            if not isinstance(lobe, SpecularLobe):
+                raise ParameterError(f"{owner}: lobes[{i}] must be a SpecularLobe, got {type(lobe).__name__}")
+        check_channels(owner, albedo=albedo, **{f"lobes[{i}]": lobe.channels for i, lobe in enumerate(lobes)})
+        self.diffuse = as_channels(albedo)
+        self.lobes = tuple(lobes)
+
+    pair_kernels = True
+
+    @property
+    def channels(self):
+        return max(channel_count(self.diffuse), *(lobe.channels for lobe in self.lobes))
+
+    def eval_pairs(self, pairs):
+        # the base on valid pairs, then every lobe's own pair kernel (each 0 on invalid pairs)
+        f = jnp.where(pairs.valid[..., None], self.diffuse / jnp.pi, 0)
+        for lobe in self.lobes:
+            f = f + lobe.eval_pairs(pairs)
+        return f
+
+    def eval(self, wo, wi):
+        check_directions("MultiLobe.eval", wo=wo, wi=wi)
+        return self.eval_pairs(SoAPairs.of(wo, wi))
+
+    def probabilities(self):
+        """The sampling probabilities of the components: the cosine hemisphere first, then the
+        lobes in order, proportional to the mean albedo and to the lobes'
+        :meth:`~SpecularLobe.reflectance_estimate` (equal when all are 0).
+
+        Returns
+        -------
+        tuple of jax.Array
+            ``K + 1`` probabilities of shape ``(...)`` summing to 1.
+
+        Examples
+        --------
+        >>> from matfit.models import MultiLobe, SpecularLobe
+        >>> p = MultiLobe(0.0, [SpecularLobe(0.1, f0=1.0), SpecularLobe(0.3, f0=1.0)]).probabilities()
+        >>> [round(float(x), 6) for x in p]
+        [0.0, 0.5, 0.5]
+        """
+        w = [jnp.mean(self.diffuse, axis=-1)] + [jnp.mean(lobe.reflectance_estimate(), axis=-1) for lobe in self.lobes]
+        w = jnp.broadcast_arrays(*w)
+        total = sum(w)
+        n = len(w)
+        return tuple(jnp.where(total > 0, safe_div(x, total), 1.0 / n) for x in w)
+
+    def pdf(self, wo, wi):
+        check_directions("MultiLobe.pdf", wo=wo, wi=wi)
+        p = self.probabilities()
+        out = p[0] * cosine_pdf(wo, wi)
+        for pj, lobe in zip(p[1:], self.lobes):
+            out = out + pj * lobe.reflection_pdf(wo, wi)
+        return out
+
+    def sample(self, wo, u):
+        check_directions("MultiLobe.sample", wo=wo)
+        check_u("MultiLobe.sample", u, 3)
+        p = self.probabilities()
+        u0 = u[..., 0]
+        wi = cosine_hemisphere(u[..., 1], u[..., 2])
+        wi = jnp.broadcast_to(wi, jnp.broadcast_shapes(wi.shape, wo.shape))
+        start = p[0]  # lobe j takes u0 in [p_0 + ... + p_{j-1}, ... + p_j)
+        for pj, lobe in zip(p[1:], self.lobes):
+            pick = (u0 >= start) & (pj > 0)
+            wi = jnp.where(pick[..., None], lobe.reflection_sample(wo, u[..., 1:3]), wi)
+            start = start + pj
+        return _sampled(self, wo, normalize(wi))
+
+
+def _sampled(model, wo, wi):
+    """``sample``'s ``(wi, weight, pdf)`` for drawn directions ``wi``: ``weight = f cos / pdf``;
+    a pair outside the upper hemisphere (``COS_EPS``) or of density 0 is invalid (weight and
+    pdf 0)."""
+    pdf = model.pdf(wo, wi)
+    ok = (pdf > 0) & (wi[..., 2] > COS_EPS) & (wo[..., 2] > COS_EPS)
+    weight = safe_div(model.eval(wo, wi) * jnp.abs(wi[..., 2])[..., None], pdf[..., None])
+    return wi, jnp.where(ok[..., None], weight, 0), jnp.where(ok, pdf, 0)
