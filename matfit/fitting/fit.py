@@ -62,8 +62,9 @@ def fit(table, model="plastic", method=DEFAULT_METHOD, loss="l2", robust=None, r
     fixed : dict, optional
         Parameters held at given values.  tied : per-channel parameters shared by all channels.
     starts : int
-        Number of starts: the data-driven guess plus the ``starts - 1`` best of ``8 (starts - 1)``
-        screened candidates (see :func:`fit_starts`).
+        Number of starts: the data-driven guess plus the ``starts - 1`` best of the screened
+        candidates (random draws around the guess and the guess with the widths of the
+        table's extracted microfacet distribution; see :func:`fit_starts`).
     init : dict, optional
         Starting values replacing the data-driven guess.
 
