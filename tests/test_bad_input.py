@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from matfit.errors import MatfitError, ParameterError
-from matfit.fitting import Parametrization, fit, fit_batch, residuals, robust_fit
+from matfit.fitting import FAMILIES, Parametrization, fit, fit_batch, residuals, robust_fit
 from matfit.models import (Blend, Lambert, Layered, Plastic, RoughConductor, RoughDielectric, SmoothConductor,
                            SmoothDielectric)
 from matfit.table import Table
@@ -147,8 +147,7 @@ def test_composite_models_pass_masked_directions_to_components():
     (dict(channels=0), "channels must be a positive integer, got 0"),
     (dict(channels=2.5), "channels must be a positive integer, got 2.5"),
     (dict(family=3), "model must be a family name (str) or a Family, got int"),
-    (dict(family="phong"), "model must be one of ['car_paint', 'conductor', 'conductor_beckmann', 'dielectric', "
-                           "'diffuse_specular', 'lambert', 'plastic'], got 'phong'"),
+    (dict(family="phong"), f"model must be one of {sorted(FAMILIES)}, got 'phong'"),
 ])
 def test_parametrization(kw, needle):
     args = {"family": "plastic", "channels": 3, **kw}
