@@ -183,15 +183,16 @@ def fit_family(train, n_real, heldout, fam):
     """The default ``fit(train, model=fam, loss="e2")``, and its record: held-out scores, AIC/BIC on
     the ``n_real`` real training rows, convergence and bound warnings as the fit reports them."""
     from matfit.fitting import fit
+    from matfit.fitting.select import information_criteria
 
     t0 = time.perf_counter()
     res = fit(train, model=fam, loss="e2")
     seconds = time.perf_counter() - t0
     n, p = n_real * train.n_channels, len(res.labels)
-    ll = n * math.log(max(float(res.rss), 1e-300) / n)
+    aic, bic = information_criteria(res.rss, n, p)
     warns = list(res.warnings or [])
     rec = {"held_out": scores(predict(res.model, heldout), heldout), "train_e2": 2 * res.objective / n,
-           "aic": ll + 2 * p, "bic": ll + p * math.log(n), "p": p, "n": n,
+           "aic": aic, "bic": bic, "p": p, "n": n,
            "converged": bool(res.converged), "steps": int(res.steps), "seconds": seconds,
            "at_bound": [w for w in warns if w.startswith("at a bound")], "warnings": warns, "info": list(res.info),
            "params": {k: jsonable(np.asarray(v)) for k, v in res.params.items()}}

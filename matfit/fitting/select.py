@@ -31,7 +31,7 @@ from .fit import FitError, fit, initial_guess
 from .losses import residuals
 from .params import Parametrization, get_family
 
-__all__ = ["compare_models", "ModelComparison", "recommend", "robust_fit", "DEFAULT_TOL"]
+__all__ = ["compare_models", "ModelComparison", "recommend", "robust_fit", "information_criteria", "DEFAULT_TOL"]
 
 #: Relative hold-out tolerance of the recommendation.
 DEFAULT_TOL = 0.02
@@ -265,6 +265,33 @@ def _holdout_errors(result, table, loss):
     return rmse, raw
 
 
+def information_criteria(rss, n, p):
+    """``(aic, bic)`` of a least-squares fit: ``n log(RSS/n) + 2p`` and ``n log(RSS/n) + p log n``
+    (the Gaussian log-likelihood with the residual variance estimated; RSS floored at 1e-300).
+
+    Parameters
+    ----------
+    rss : float
+        Residual sum of squares.
+    n : int
+        Number of residuals.
+    p : int
+        Number of free parameters.
+
+    Returns
+    -------
+    tuple of float
+
+    Examples
+    --------
+    >>> from matfit.fitting.select import information_criteria
+    >>> [round(x, 3) for x in information_criteria(1.0, 100, 2)]
+    [-456.517, -451.307]
+    """
+    ll = n * math.log(max(float(rss), 1e-300) / n)
+    return ll + 2 * p, ll + p * math.log(n)
+
+
 def compare_models(table, models=("lambert", "conductor", "plastic"), holdout=0.2, seed=0, tol=DEFAULT_TOL,
                    **fit_kwargs) -> ModelComparison:
     """Fit each family in ``models`` on a random ``1 - holdout`` of the rows and compare them.
@@ -354,10 +381,9 @@ def compare_models(table, models=("lambert", "conductor", "plastic"), holdout=0.
             rows.append({"model": m, "error": str(e), "seconds": time.perf_counter() - t0})
             continue
         n, p = int(res.n_residuals), len(res.labels)
-        rss = max(float(res.rss), 1e-300)
-        ll = n * math.log(rss / n)
+        aic, bic = information_criteria(res.rss, n, p)
         h_rmse, h_raw = _holdout_errors(res, hold_part, loss)
-        rows.append({"model": m, "p": p, "n": n, "rss": float(res.rss), "aic": ll + 2 * p, "bic": ll + p * math.log(n),
+        rows.append({"model": m, "p": p, "n": n, "rss": float(res.rss), "aic": aic, "bic": bic,
                      "holdout_rmse": h_rmse, "holdout_rmse_raw": h_raw, "objective": float(res.objective),
                      "converged": bool(res.converged), "seconds": time.perf_counter() - t0})
         results[m] = res
