@@ -123,7 +123,7 @@ class Slot:
 
     Examples
     --------
-    >>> from matfit.fitting._compose import Lobe, lobe_layout
+    >>> from matfit.fitting.params import Lobe, lobe_layout
     >>> [s.name for s in lobe_layout("lambert", (Lobe(), Lobe()), "channels", True, ("f0",), ())]
     ['albedo', 'alpha_1', 'ks_1', 'f0', 'ratio_2', 'ks_2']
     """
@@ -177,7 +177,7 @@ def lobe_layout(base, lobes, weights, ordered, share, tied):
 
     Examples
     --------
-    >>> from matfit.fitting._compose import Lobe, lobe_layout
+    >>> from matfit.fitting.params import Lobe, lobe_layout
     >>> [s.name for s in lobe_layout(None, (Lobe(fresnel="conductor"),) * 2, "mixture", True, ("eta", "k"), ())]
     ['alpha_1', 'eta', 'k', 'ratio_2', 'mix_2']
     """

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import ParameterError
-from ._compose import Lobe, LobeRefine, LobeSpec, lobe_layout
+from ._compose import MAX_ROWS, Lobe, LobeRefine, LobeSpec, lobe_layout
 from ._conductor_guess import refine_conductor
 from ..models import CoatedConductor, DiffuseSpecular, Lambert, Plastic, RoughConductor, RoughDielectric
 
