@@ -135,3 +135,66 @@ def test_published_heldout_e2_matches_numpy_ref():
     best = min(evaluable, key=lambda s: rec["published"][s]["e2"])
     assert rec["best_published"] == best
     assert rec["ratio"] == pytest.approx(rec["fits"]["lambert"]["held_out"]["e2"] / rec["published"][best]["e2"])
+
+
+class _FakeSurrogate:
+    """A stand-in for shared/tools/merl_surrogate.py: ``network_brdf`` of a known isotropic BRDF,
+    ``f = a + b cos(theta_h)^8`` per channel (no family of the test fits it exactly)."""
+
+    A, B = np.array([0.05, 0.10, 0.20]), np.array([0.6, 0.4, 0.2])
+
+    def network_brdf(self, name, theta_h, theta_d, phi_d):
+        return self.A + self.B * np.cos(np.asarray(theta_h))[..., None] ** 8
+
+
+def test_own_reading_fits_and_scores_the_weighted_reading(monkeypatch):
+    """The low_sin comparison: the fit minimizes the sin(theta_i)-weighted E2 on the training grid
+    (a Lambert albedo equal to scipy's minimizer of that objective), every score is that weighted
+    E2 on the test grid, recomputed here, and the ratio is the best family's over the best published."""
+    from scipy.optimize import minimize_scalar
+
+    from _low2012 import direction_grid
+    from matfit.io import dirs_to_half_diff
+
+    monkeypatch.setattr(fm, "LOW_SIN_TRAIN", (8, 16, 8))
+    monkeypatch.setattr(fm, "LOW_SIN_TEST", (7, 13, 7))
+    ms = _FakeSurrogate()
+    published = {"dim": lambda wo, wi: np.full((len(wo), 3), 0.1), "bright": lambda wo, wi: np.full((len(wo), 3), 0.3)}
+    rec = {"material": "fake", "chosen": "lambert", "fits": {"lambert": {"params": {"albedo": [0.5, 0.5, 0.5]}}}}
+    out = fm.own_reading(rec, published, ms, ["lambert", "diffuse_specular"])
+
+    def data(grid):
+        wo, wi, w = direction_grid(*grid)
+        th = dirs_to_half_diff(wo, wi)[0]
+        return wo, wi, w, ms.network_brdf("fake", th, None, None)
+
+    def e2(pred, wi, w, y):
+        c = wi[:, 2:3]
+        return float(np.sum(w[:, None] * (np.log1p(pred * c) - np.log1p(y * c)) ** 2) / (w.sum() * 3))
+
+    wo, wi, w, y = data((8, 16, 8))
+    for ch in range(3):  # the fitted albedo minimizes this channel's weighted E2
+        obj = lambda a: np.sum(w * (np.log1p(a / np.pi * wi[:, 2]) - np.log1p(y[:, ch] * wi[:, 2])) ** 2)
+        best = minimize_scalar(obj, bounds=(0, 1), method="bounded", options={"xatol": 1e-10}).x
+        assert out["fits"]["lambert"]["params"]["albedo"][ch] == pytest.approx(best, rel=1e-5)
+    two, twi, tw, ty = data((7, 13, 7))
+    for src, f in published.items():
+        assert out["published"][src] == pytest.approx(e2(f(two, twi), twi, tw, ty), rel=1e-10)
+    assert out["cells_fit"] == {"family": "lambert", "e2": pytest.approx(e2(np.full_like(ty, 0.5 / np.pi), twi, tw, ty), rel=1e-8)}
+    assert out["chosen"] == min(out["fits"], key=lambda f: out["fits"][f]["e2"])
+    assert out["best_published"] == min(out["published"], key=out["published"].get)
+    assert out["ratio"] == pytest.approx(out["fits"][out["chosen"]]["e2"] / out["published"][out["best_published"]])
+
+
+def test_loss_regions_partition_the_heldout_e2():
+    t = _conductor_table()
+    from matfit.models import RoughConductor
+
+    slightly_off = RoughConductor(0.32, np.array([0.2, 0.9, 1.4]), np.array([3.5, 2.6, 2.0]))
+    published = {"off": lambda wo, wi: np.asarray(slightly_off.eval(wo, wi))}
+    rec, _, held = fm.fit_material(t, ["lambert"], published=published, bucket=1024)
+    regions = fm.loss_regions(rec, published, held)
+    assert [k for k, _ in fm.REGIONS] == list(regions)
+    assert sum(v["cells"] for v in regions.values()) == len(held)  # disjoint and complete
+    assert sum(v["chosen"] for v in regions.values()) == pytest.approx(rec["fits"]["lambert"]["held_out"]["e2"], rel=1e-9)
+    assert sum(v["published"] for v in regions.values()) == pytest.approx(rec["published"]["off"]["e2"], rel=1e-9)
