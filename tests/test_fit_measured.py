@@ -198,3 +198,19 @@ def test_loss_regions_partition_the_heldout_e2():
     assert sum(v["cells"] for v in regions.values()) == len(held)  # disjoint and complete
     assert sum(v["chosen"] for v in regions.values()) == pytest.approx(rec["fits"]["lambert"]["held_out"]["e2"], rel=1e-9)
     assert sum(v["published"] for v in regions.values()) == pytest.approx(rec["published"]["off"]["e2"], rel=1e-9)
+
+
+def test_check_claims_recounts_bounds_and_restarts_converged_fits():
+    t = _conductor_table(1500)
+    rec, _, _ = fm.fit_material(t, ["lambert", "conductor"], bucket=1024)
+    train, _ = fm.split_cells(t)
+    claims = fm.check_claims(rec, fm.padded(train, bucket=1024)[0])
+    assert set(claims) == {"lambert", "conductor"}
+    for fam, c in claims.items():
+        assert c["at_bound_warned"] == c["at_bound_recounted"] == len(rec["fits"][fam]["at_bound"])
+        if c["converged"]:  # a restart from a converged solution finds nothing lower
+            assert abs(c["rel_drop"]) < 1e-6, (fam, c)
+    # a record whose value sits on a bound without a warning is caught by the recount
+    lied = {**rec, "fits": {"lambert": {**rec["fits"]["lambert"], "params": {"albedo": [0.0, 0.5, 0.5]}, "at_bound": []}}}
+    c = fm.check_claims(lied, fm.padded(train, bucket=1024)[0])["lambert"]
+    assert c["at_bound_recounted"] == 1 != c["at_bound_warned"]
