@@ -457,7 +457,7 @@ def _fmt(x, nd=5):
 
 
 def write_report(result, table, out_dir, posterior=None, truth=None, history=None, title=None, max_rows=MAX_ROWS,
-                 seed=0, preview=True) -> dict:
+                 seed=0, preview=True, measured="auto") -> dict:
     """Write a fit report (``report.md``, ``report.json``, PNG figures) into ``out_dir``.
 
     The files are listed in the module docstring. The fitted model is also written as
@@ -493,9 +493,14 @@ def write_report(result, table, out_dir, posterior=None, truth=None, history=Non
         Seed of that row subset.
     preview : bool, default True
         Render spheres under the built-in sky (:func:`matfit.render.render_sphere`): the
-        reference (the truth of a synthetic table) | the fit | their difference, in
-        ``preview.png``, with the images' mean CIEDE2000; without a reference model (a measured
-        table) the fitted sphere alone. Models of other than 1 or 3 channels are not rendered.
+        reference (the truth of a synthetic table, else the measured table as a model) | the
+        fit | their difference, in ``preview.png``, with the images' mean CIEDE2000; without a
+        reference the fitted sphere alone. Models of other than 1 or 3 channels are not rendered.
+    measured : "auto", model or None, default "auto"
+        The measured table as a model, the preview's reference when there is no truth:
+        ``"auto"`` reads it from the file the table's provenance names when that is an RGL
+        ``.bsdf`` (:class:`~matfit.models.MeasuredRGL`) or a MERL ``.binary``
+        (:class:`~matfit.models.MeasuredMERL`) that still exists; None renders no reference.
 
     Returns
     -------
@@ -642,7 +647,11 @@ def write_report(result, table, out_dir, posterior=None, truth=None, history=Non
 
     save_model(out / "model.json", result.model, family=result.family)
     files["model"] = "model.json"
-    previews = _previews(out, result.model, t_model, files) if preview else None
+    previews = None
+    if preview:
+        ref = (t_model, "truth") if t_model is not None else (
+            (_measured_model(table) if isinstance(measured, str) and measured == "auto" else measured), "measured")
+        previews = _previews(out, result.model, ref, files)
 
     summary = {
         "title": title or f"{result.family} fit",
@@ -680,18 +689,33 @@ def _history_json(history):
 PREVIEW_SIZE, PREVIEW_SPP = 128, 32
 
 
+def _measured_model(table):
+    """The measured table as a model where its provenance names an RGL or MERL file that exists
+    (:class:`~matfit.models.MeasuredRGL`, :class:`~matfit.models.MeasuredMERL`); else None."""
+    from .models import MeasuredMERL, MeasuredRGL
+
+    prov = table.provenance or {}
+    cls = {"rgl-tensor": MeasuredRGL, "merl": MeasuredMERL}.get(prov.get("format"))
+    src = prov.get("source")
+    if cls is None or not isinstance(src, str) or not Path(src).is_file():
+        return None
+    return cls.from_file(src)
+
+
 def _previews(out, model, reference, files):
-    """Render ``preview.png`` (reference | fitted | 4 x |difference|, or the fitted sphere alone)."""
+    """Render ``preview.png`` (reference | fitted | 4 x |difference|, or the fitted sphere alone);
+    ``reference`` is ``(model or None, its name)``."""
     from .render import image_ciede2000, render_sphere, save_png
 
     if model.channels not in (1, 3):
         return {"skipped": f"{model.channels} channels (previews need 1 or 3)"}
     fitted = render_sphere(model, "sky", size=PREVIEW_SIZE, spp=PREVIEW_SPP)
     info = {"environment": "sky", "size": PREVIEW_SIZE, "spp": PREVIEW_SPP}
+    reference, ref_name = reference
     if reference is not None and getattr(reference, "channels", 0) in (1, 3):
         ref = render_sphere(reference, "sky", size=PREVIEW_SIZE, spp=PREVIEW_SPP)
         info["ciede2000_mean"] = image_ciede2000(ref, fitted)
-        info["panels"] = ["truth", "fitted", "4 x |difference|"]
+        info["panels"] = [ref_name, "fitted", "4 x |difference|"]
         img = np.concatenate([ref, fitted, 4 * np.abs(ref - fitted)], axis=1)
     else:
         info["panels"] = ["fitted"]
@@ -760,7 +784,7 @@ def _write_markdown(path, s, table, result, has_truth, has_post, files):
     if pv and "preview" in files:
         what = " | ".join(pv["panels"])
         cd2 = f"; mean CIEDE2000 of the two spheres {pv['ciede2000_mean']:.2f}" if "ciede2000_mean" in pv else (
-            "; a measured table has no sphere of its own until a tabulated-measurement model exists")
+            "; no reference to render beside it (neither a truth nor a measured file that matfit reads as a model)")
         L += [f"Preview under the built-in sky ({pv['size']} px, {pv['spp']} spp, `matfit.render`): {what}{cd2}.", "",
               "![preview](preview.png)", ""]
     L += ["Numbers: `report.json`. The fitted model: `model.json` (`matfit export model.json --to gltf -o m.gltf`).", ""]

@@ -466,3 +466,26 @@ def test_bad_input_raises_clear_errors(tmp_path):
     up = jnp.array([0.0, 0.0, 1.0], jnp.float32)
     f = eqx.filter_jit(lambda model, a: model.eval(a, a))(m, up)
     assert f.dtype == jnp.float32 and abs(float(f[0]) - 0.1) < 1e-6
+
+
+def test_report_of_a_measured_file_renders_the_measurement_beside_the_fit(tmp_path):
+    """write_report reads the measured file the table came from as a model and renders it as the
+    preview's reference: measured | fitted | difference, with the two spheres' CIEDE2000."""
+    import json
+
+    from matfit.fitting import fit
+    from matfit.io import load
+    from matfit.render import image_ciede2000
+    from matfit.report import PREVIEW_SIZE, PREVIEW_SPP, write_report
+
+    path = rgl_path("paper_white")
+    table = load(path)
+    r = fit(table, model="lambert", starts=1)
+    s = write_report(r, table, tmp_path / "a")
+    assert s["preview"]["panels"] == ["measured", "fitted", "4 x |difference|"]
+    a = render_sphere(MeasuredRGL.from_file(path), "sky", size=PREVIEW_SIZE, spp=PREVIEW_SPP)
+    b = render_sphere(r.model, "sky", size=PREVIEW_SIZE, spp=PREVIEW_SPP)
+    assert s["preview"]["ciede2000_mean"] == pytest.approx(image_ciede2000(a, b), rel=1e-6)
+    assert json.loads((tmp_path / "a" / "report.json").read_text())["preview"]["panels"][0] == "measured"
+    # without the measured model (or when the table names no readable file) the fitted sphere alone
+    assert write_report(r, table, tmp_path / "b", measured=None)["preview"]["panels"] == ["fitted"]
