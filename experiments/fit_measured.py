@@ -607,12 +607,13 @@ def _why(rec):
     regions = rec.get("loss_regions", {}).get("regions")
     if regions:
         excess = {k: v["chosen"] - v["published"] for k, v in regions.items()}
-        total = sum(excess.values())
         worst = sorted(excess, key=excess.get, reverse=True)
-        parts = [f"{k}: {excess[k] / total:+.0%} of the excess ({regions[k]['cells']} cells)"
+        parts = [f"{k}, {regions[k]['cells']} cells: {regions[k]['chosen']:.3g} against {regions[k]['published']:.3g}"
                  for k in worst[:2] if excess[k] > 0]
+        better = [k for k in worst if excess[k] < 0]
         if parts:
-            why.append("the excess E2 lies in " + "; ".join(parts))
+            why.append(f"held-out E2 (net excess {sum(excess.values()):.3g}) lost in " + "; ".join(parts)
+                       + (f"; won back in {', '.join(better)}" if better else ""))
     if not d["converged"]:
         why.append("not converged")
     if d["at_bound"]:
