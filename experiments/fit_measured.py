@@ -344,6 +344,16 @@ LOW_SIN_TEST = (23, 46, 23)
 OWN_FAMILIES = ("diffuse_specular", "car_paint", "metal2", "lobes2", "lobes3")
 
 
+def recorded_model(rec, fam, channels):
+    """The model of family ``fam`` built from the parameters a record holds (float64)."""
+    import jax.numpy as jnp
+
+    from matfit.fitting import FAMILIES
+
+    values = {k: jnp.asarray(v, dtype=jnp.float64) for k, v in rec["fits"][fam]["params"].items()}
+    return FAMILIES[fam].build(values, channels)
+
+
 def low_sin_data(name, grid, merl_surrogate):
     """The ``low_sin`` samples of MERL material ``name``: ``wo, wi`` (N, 3), the weights sin theta_i
     (N,) and the surrogate network's BRDF (N, 3) at those very directions (no table lookup)."""
@@ -369,7 +379,7 @@ def own_reading(rec, published, merl_surrogate, families):
 
     from _low2012 import e2_weighted
     from matfit import Table
-    from matfit.fitting import FAMILIES, fit
+    from matfit.fitting import fit
 
     name = rec["material"]
     wo, wi, w, y = low_sin_data(name, LOW_SIN_TRAIN, merl_surrogate)
@@ -395,8 +405,7 @@ def own_reading(rec, published, merl_surrogate, families):
         out["chosen"] = min(ok, key=lambda f: ok[f]["e2"])
     if rec.get("chosen"):
         fam = rec["chosen"]
-        values = {k: jnp.asarray(v, dtype=jnp.float64) for k, v in rec["fits"][fam]["params"].items()}
-        out["cells_fit"] = {"family": fam, "e2": score(FAMILIES[fam].build(values, y.shape[1]))}
+        out["cells_fit"] = {"family": fam, "e2": score(recorded_model(rec, fam, y.shape[1]))}
     pub = {}
     for src, mdl in sorted((published or {}).items()):
         try:
@@ -423,14 +432,10 @@ def loss_regions(rec, published, heldout):
     """Where a loss comes from: each :data:`REGIONS` part's contribution to the held-out E2 (its
     cells' sum of the per-cell E2 / all held-out cells) of the chosen family and of the best
     published fit, ``{region: {"cells", "chosen", "published"}}``."""
-    import jax.numpy as jnp
-
-    from matfit.fitting import FAMILIES
     from matfit.io import dirs_to_half_diff
 
     fam = rec["chosen"]
-    values = {k: jnp.asarray(v, dtype=jnp.float64) for k, v in rec["fits"][fam]["params"].items()}
-    model = FAMILIES[fam].build(values, heldout.n_channels)
+    model = recorded_model(rec, fam, heldout.n_channels)
 
     def per_cell(pred):
         c = np.clip(heldout.wi[:, 2], 0, None)[:, None]
