@@ -437,9 +437,14 @@ def loss_regions(rec, published, heldout):
     fam = rec["chosen"]
     model = recorded_model(rec, fam, heldout.n_channels)
 
-    def per_cell(pred):
-        c = np.clip(heldout.wi[:, 2], 0, None)[:, None]
-        return np.mean((np.log1p(np.clip(pred, 0, None) * c) - np.log1p(np.clip(heldout.values, 0, None) * c)) ** 2, 1)
+    def per_cell(pred):  # the squared E2 residuals that scores() averages, per cell (mean over channels)
+        import jax.numpy as jnp
+
+        from matfit.fitting import residuals
+
+        y = jnp.asarray(heldout.values)
+        r = residuals(jnp.asarray(pred, dtype=float), y, jnp.ones_like(y), jnp.asarray(heldout.wi[:, 2]), loss="e2")
+        return np.mean(np.asarray(r, dtype=np.float64) ** 2, 1)
 
     e_m = per_cell(predict(model, heldout))
     e_p = per_cell(published[rec["best_published"]](heldout.wo, heldout.wi))
