@@ -115,8 +115,8 @@ def parse_args(argv=None):
     ap.add_argument("--no-report", action="store_true", help="no write_report per material")
     ap.add_argument("--summary", action="store_true", help="only rebuild the page from the JSON files")
     ap.add_argument("--low-sin", action="store_true",
-                    help="only the comparison under the published fits' own reading (low_sin) for the MERL "
-                         "materials fitted before (where missing), then rebuild the page")
+                    help="only the passes after the fits (where missing): where each MERL loss lies, the "
+                         "comparison in the published fits' own reading (low_sin), the RGL claims; then the page")
     return ap.parse_args(argv)
 
 
@@ -504,6 +504,21 @@ def add_claims(paths):
         print(f"[rgl] {p.stem}: claims checked, largest drop on a restart {worst:.2g}", flush=True)
 
 
+def add_loss_regions(names, pub, merl_surrogate):
+    """:func:`loss_regions` for every MERL material of ``names`` that matfit loses (ratio > 1) and
+    whose JSON has no breakdown for its chosen family (written back to the JSON)."""
+    for n in names:
+        jpath = ITEMS / f"merl_{n}.json"
+        if not jpath.exists():
+            continue
+        rec = json.loads(jpath.read_text())
+        if rec.get("ratio", 0) <= 1 or rec.get("loss_regions", {}).get("family") == rec["chosen"]:
+            continue
+        _, heldout = split_cells(merl_table(n, merl_surrogate))
+        rec["loss_regions"] = {"family": rec["chosen"], "regions": loss_regions(rec, pub.get(n, {}), heldout)}
+        jpath.write_text(json.dumps(jsonable(rec), indent=1))
+
+
 def add_own_reading(names, pub, merl_surrogate, families):
     """:func:`own_reading` for every MERL material of ``names`` with a JSON file and no
     ``own_reading`` entry with every family of ``families`` (written back to the JSON)."""
@@ -512,10 +527,6 @@ def add_own_reading(names, pub, merl_surrogate, families):
         if not jpath.exists():
             continue
         rec = json.loads(jpath.read_text())
-        if rec.get("ratio", 0) > 1 and rec.get("loss_regions", {}).get("family") != rec["chosen"]:
-            _, heldout = split_cells(merl_table(n, merl_surrogate))
-            rec["loss_regions"] = {"family": rec["chosen"], "regions": loss_regions(rec, pub.get(n, {}), heldout)}
-            jpath.write_text(json.dumps(jsonable(rec), indent=1))
         have = rec.get("own_reading", {}).get("fits", {})
         if all("e2" in have.get(f, {}) for f in families):
             continue
@@ -583,6 +594,7 @@ def main(argv=None):
     if wanted is not None:
         rgl = [p for p in rgl if p.stem in wanted]
     if args.low_sin:
+        add_loss_regions(names, pub, merl_surrogate)
         add_own_reading(names, pub, merl_surrogate, [f for f in OWN_FAMILIES if f in families])
         add_claims(rgl)
         return write_summary(None)
@@ -597,6 +609,7 @@ def main(argv=None):
     wall = time.perf_counter() - T0
     print(f"fits done in {wall:.0f} s", flush=True)
     if not args.skip_merl:
+        add_loss_regions(names, pub, merl_surrogate)
         add_own_reading(names, pub, merl_surrogate, [f for f in OWN_FAMILIES if f in families])  # the published fits' own reading
     if not args.skip_rgl:
         add_claims(rgl)
