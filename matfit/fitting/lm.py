@@ -46,11 +46,22 @@ Steps (Nielsen 1999; Madsen, Nielsen & Tingleff 2004, Alg. 3.16, with Marquardt'
     whose Gauss-Newton step would throw it deep into saturation, where its derivative vanishes
     for good, gets there only if the objective keeps agreeing (on a full MERL conductor table the
     unlimited first step set ``k`` to exactly 0 and ended 0.2 % above the minimum found with the cap).
-    With ``extrapolate=True`` (``fit`` sets it for the full solve of a large table) an accepted
+    With ``extrapolate=True`` (``fit`` sets it for the solves of a large table) an accepted
     step whose gain ratio exceeds 1.25 is followed by one evaluation at the minimum of the
     parabola through :math:`F(z)`, :math:`g^T\delta` and :math:`F(z+\delta)` along the step
     (factor in [1, 4]), kept when lower (:func:`_extrapolated`): a large-residual problem's
     Gauss-Newton model can overestimate the curvature, and its steps then go part of the way.
+
+Secant model (``secant=True``, which ``fit`` also sets for a large table)
+    The Hessian of :math:`F` is :math:`J^TJ + S`, :math:`S = \sum_i r_i \nabla^2 r_i`; Gauss-
+    Newton drops :math:`S`, and where the residuals stay large (a measured table that no model of
+    the family fits to its noise) it converges only linearly. As NL2SOL (Dennis, Gay & Welsch
+    1981) the solver keeps a secant estimate of :math:`S`, updated after every accepted step so
+    that :math:`S\delta = y^\#`, :math:`y^\# = g_{new} - g - J^TJ\delta` (the change of the
+    gradient that :math:`J^TJ` does not explain), and steps with :math:`J^TJ + S` while that
+    model predicted the last decrease better than :math:`J^TJ` alone and its damped matrix is
+    positive definite. On a full MERL plastic table (white-paint) the whole-table solve took 29
+    accepted steps in float64 without it and 11 with it, to a lower objective.
 
 Stopping
     ``converged`` after an accepted step with gain ratio above 1/4 that lowered the objective by at
@@ -75,6 +86,10 @@ References
   Analysis, Lecture Notes in Mathematics 630, 1978.
 - A. R. Curtis, M. J. D. Powell, J. K. Reid, "On the estimation of sparse Jacobian matrices",
   J. Inst. Maths Applics 13, 1974.
+- J. E. Dennis, D. M. Gay, R. E. Welsch, "An adaptive nonlinear least-squares algorithm",
+  ACM Trans. Math. Software 7(3), 1981 (NL2SOL).
+- S. S. Oren, D. G. Luenberger, "Self-scaling variable metric (SSVM) algorithms", Management
+  Science 20(5), 1974.
 """
 
 from __future__ import annotations
@@ -471,6 +486,8 @@ class _State(NamedTuple):
     ok: jax.Array
     rejects: jax.Array
     D: jax.Array
+    S: jax.Array
+    aug: jax.Array
 
 
 def _extrapolated(fn, args, s, delta, z_new, r_new, F_new, try_it, cap):
@@ -495,6 +512,35 @@ def _extrapolated(fn, args, s, delta, z_new, r_new, F_new, try_it, cap):
         return jax.tree_util.tree_map(lambda a, b: jnp.where(better, a, b), (z2, r2, F2), (z_new, r_new, F_new))
 
     return jax.lax.cond(try_it & (alpha > 1), tried, lambda: (z_new, r_new, F_new))
+
+
+def _secant_update(s, step, g_new, F_new, accepted):
+    """After a step ``step`` from ``s.z``: the secant estimate of the Hessian's second-order term
+    ``S`` (sum of ``r_i`` times the Hessians of the residuals, which Gauss-Newton drops) and the
+    model for the next step, the augmented ``J^T J + S`` when it predicted this step's decrease
+    better than ``J^T J`` alone (NL2SOL's model switch).
+
+    ``S`` is sized (Oren & Luenberger's factor ``min(1, |d.y#| / |d.S.d|)``) and updated by the
+    Dennis-Gay-Welsch formula so that ``S d = y#``, with ``y = g_new - g`` and
+    ``y# = y - J^T J d``, the part of the gradient's change that ``J^T J`` does not explain (NL2SOL
+    forms ``(J_new - J)^T r_new``; without the Jacobians, only their normal equations, this is its
+    first-order equivalent). Skipped after a rejected step or where ``y.d`` is not positive."""
+    d = step
+    y = g_new - s.g
+    ys = jnp.dot(y, d)
+    dSd = jnp.dot(d, s.S @ d)
+    ysharp = y - s.A @ d
+    size = jnp.minimum(1, jnp.abs(jnp.dot(d, ysharp)) / jnp.where(dSd != 0, jnp.abs(dSd), 1))
+    S = jnp.where(dSd != 0, size, 1) * s.S
+    w = ysharp - S @ d
+    ok = accepted & (ys > 1e-6 * jnp.linalg.norm(y) * jnp.linalg.norm(d)) & jnp.all(jnp.isfinite(w))
+    ys = jnp.where(ok, ys, 1)
+    S = S + (jnp.outer(w, y) + jnp.outer(y, w)) / ys - jnp.dot(w, d) * jnp.outer(y, y) / ys ** 2
+    actual = s.F - F_new
+    pred_gn = -jnp.dot(s.g, d) - 0.5 * jnp.dot(d, s.A @ d)
+    pred_aug = pred_gn - 0.5 * dSd
+    aug = jnp.where(accepted, jnp.abs(pred_aug - actual) < jnp.abs(pred_gn - actual), s.aug)
+    return jnp.where(ok, S, s.S), aug
 
 
 class LMResult(NamedTuple):
@@ -773,6 +819,13 @@ class LevenbergMarquardtFD(eqx.Module):
         After an accepted step that beat its predicted decrease by more than 25 %, try the line
         minimum along it (one more evaluation there). For single large fits; under ``vmap``
         every member would pay the evaluation.
+    secant : bool, default False
+        Keep a secant estimate ``S`` of the second-order term that Gauss-Newton drops and step
+        with ``J^T J + S`` while that model predicts the decreases better (Dennis, Gay & Welsch
+        1981, NL2SOL; :func:`_secant_update`). Gauss-Newton converges only linearly on a
+        large-residual problem, a measured table that no model of the family fits to its noise;
+        with ``S`` it converges superlinearly. For single large fits (a small symmetric
+        eigenvalue problem per iteration checks that the damped model is definite).
 
     Examples
     --------
@@ -791,6 +844,7 @@ class LevenbergMarquardtFD(eqx.Module):
     damping: NielsenDamping
     termination: StepTermination
     extrapolate: bool = eqx.field(default=False, static=True)
+    secant: bool = eqx.field(default=False, static=True)
 
     def minimise(self, fn, z0, args, seeds, owner, max_steps=100, wide=False) -> LMResult:
         """Minimize ``0.5 |fn(z, args)|^2`` from ``z0``.
@@ -834,7 +888,8 @@ class LevenbergMarquardtFD(eqx.Module):
         mu0, nu0 = self.damping.init(dt)
         s = _State(z0, F0, A0, g0, r0, mu0, nu0, jnp.asarray(0), jnp.asarray(1 + per_jac),
                    jnp.asarray(False), jnp.asarray(False), jnp.asarray(0),
-                   jnp.maximum(jnp.diag(A0), jnp.finfo(dt).eps * jnp.max(jnp.diag(A0)) + jnp.finfo(dt).tiny))
+                   jnp.maximum(jnp.diag(A0), jnp.finfo(dt).eps * jnp.max(jnp.diag(A0)) + jnp.finfo(dt).tiny),
+                   jnp.zeros_like(A0), jnp.asarray(False))
 
         # One flat loop: every iteration is one trial step and the Jacobian at the (possibly
         # unchanged) point. Under vmap (batched fits) a nested loop of rejections would make every
@@ -844,10 +899,14 @@ class LevenbergMarquardtFD(eqx.Module):
             return (~s.done) & (s.steps < max_steps) & (s.evals < (4 * max_steps + 1) * (1 + per_jac))
 
         def body(s):
-            delta = self.descent(s.A, s.mu, s.D, s.g).astype(dt)
+            H = s.A
+            if self.secant:  # the augmented model where it is chosen and its damped matrix is definite
+                Ha = s.A + s.S
+                H = jnp.where(s.aug & (jnp.linalg.eigvalsh(Ha + s.mu * jnp.diag(s.D))[0] > 0), Ha, s.A)
+            delta = self.descent(H, s.mu, s.D, s.g).astype(dt)
             r_new = fn(s.z + delta, args)
             F_new = half_sq(r_new)
-            pred = (-jnp.dot(s.g, delta) - 0.5 * jnp.dot(delta, s.A @ delta)).astype(dt)
+            pred = (-jnp.dot(s.g, delta) - 0.5 * jnp.dot(delta, H @ delta)).astype(dt)
             rho = (s.F - F_new) / jnp.where(pred > 0, pred, jnp.inf)
             acc = jnp.isfinite(F_new) & (F_new < s.F) & (rho > 0) & jnp.all(jnp.isfinite(delta))
             mu, nu = self.damping.update(s.mu, s.nu, acc, rho)
@@ -861,8 +920,11 @@ class LevenbergMarquardtFD(eqx.Module):
                 lambda: (s.F, s.A, s.g, s.r))
             rejects = jnp.where(acc, 0, s.rejects + 1)
             stop = self.termination(s, delta, F_new, F_c, pred, rho, acc, g, rejects)
+            S, aug = s.S, s.aug
+            if self.secant:
+                S, aug = _secant_update(s, z_new - s.z, g, F_c, acc)
             return _State(z_new, F_c, A, g, r, mu, nu, s.steps + acc.astype(s.steps.dtype),
-                          s.evals + 1 + acc * per_jac, stop, stop, rejects, jnp.maximum(s.D, jnp.diag(A)))
+                          s.evals + 1 + acc * per_jac, stop, stop, rejects, jnp.maximum(s.D, jnp.diag(A)), S, aug)
 
         small_g0 = self.termination.at_start(g0)
         s = s._replace(done=small_g0, ok=small_g0)
@@ -871,7 +933,7 @@ class LevenbergMarquardtFD(eqx.Module):
 
 
 def lm_fd(fn, z0, args, seeds, owner, max_steps=100, rtol=1e-8, atol=1e-10, central=None, max_reject=12,
-          tau=1e-3, max_step=3.0, wide=False, extrapolate=False) -> LMResult:
+          tau=1e-3, max_step=3.0, wide=False, extrapolate=False, secant=False) -> LMResult:
     """Minimize ``0.5 |fn(z, args)|^2`` from ``z0`` with :class:`LevenbergMarquardtFD` built from
     these options (see the module docstring).
 
@@ -903,6 +965,8 @@ def lm_fd(fn, z0, args, seeds, owner, max_steps=100, rtol=1e-8, atol=1e-10, cent
         return ``A`` so: a float32 fit's ``A`` then serves covariances as a float64 one does.
     extrapolate : bool, default False
         Line extrapolation after steps that beat the model (:class:`LevenbergMarquardtFD`).
+    secant : bool, default False
+        The secant model of the Hessian's second-order term (:class:`LevenbergMarquardtFD`).
 
     Returns
     -------
@@ -920,5 +984,5 @@ def lm_fd(fn, z0, args, seeds, owner, max_steps=100, rtol=1e-8, atol=1e-10, cent
     ([2.0, 1.5], True)
     """
     solver = LevenbergMarquardtFD(GroupedDifferences(central), BoxedDampedStep(max_step), NielsenDamping(tau),
-                                  StepTermination(rtol, atol, max_reject), extrapolate)
+                                  StepTermination(rtol, atol, max_reject), extrapolate, secant)
     return solver.minimise(fn, z0, args, seeds, owner, max_steps=max_steps, wide=wide)
