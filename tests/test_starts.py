@@ -204,3 +204,27 @@ def test_widths_entries_are_checked(table):
 
     with pytest.raises(ParameterError, match="widths entry 'eta'"):
         initial_guesses([table], Parametrization("conductor", 3), widths={"eta": 1.0})
+
+
+@pytest.mark.parametrize("family", ["conductor", "plastic"])
+def test_guess_from_shared_features_equals_a_fresh_guess(family, retro_table):
+    """fit_starts computes a table's features once for its two guesses (the generic one and the
+    one with the extracted widths): each equals the guess computed from scratch, and the family's
+    refinement (the conductor's, in place) leaves the shared features unchanged."""
+    from matfit.fitting.fit import guesses_from_arrays
+    from matfit.fitting._starts import table_features
+
+    par = Parametrization(family, 3)
+    arrays = tuple(np.asarray(a, float)[None] for a in (retro_table.wo, retro_table.wi, retro_table.values))
+    M = np.asarray(retro_table.valid)[None]
+    feats = table_features(*arrays, M)
+    before = {k: v.copy() for k, v in feats.items()}
+    for widths in (None, {"alpha": 0.1, "alpha_base": 0.3, "alpha_coat": 0.1}):
+        shared = guesses_from_arrays(*arrays, M, par, widths=widths, features=feats)
+        fresh = guesses_from_arrays(*arrays, M, par, widths=widths)
+        assert shared.keys() == fresh.keys()
+        for k in fresh:
+            np.testing.assert_array_equal(shared[k], fresh[k])
+    for k in before:
+        np.testing.assert_array_equal(feats[k], before[k])
+    assert feats["alpha"].shape == (1,) and feats["floor"].shape == feats["r0"].shape == (1, 3)

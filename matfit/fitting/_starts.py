@@ -113,15 +113,77 @@ def initial_guesses(tables, par: Parametrization, widths=None):
     >>> initial_guesses(tables, Parametrization("lambert", 3))["albedo"].shape
     (2, 3)
     """
-    stack = (lambda xs: np.asarray(xs[0])[None]) if len(tables) == 1 else np.stack  # one table: no copy
+    WO, WI, V, M = _stacked(tables)
+    return guesses_from_arrays(WO, WI, V, M, par, one=len(tables) == 1, widths=widths)
+
+
+def _stacked(tables):
+    """``(WO, WI, V, M)`` of tables of one shape, stacked along a leading axis (one table: no copy)."""
+    stack = (lambda xs: np.asarray(xs[0])[None]) if len(tables) == 1 else np.stack
     V = stack([np.asarray(t.values, float) for t in tables])
     M = stack([np.asarray(t.valid, bool) for t in tables])
     WO = stack([np.asarray(t.wo, float) for t in tables])
     WI = stack([np.asarray(t.wi, float) for t in tables])
-    return guesses_from_arrays(WO, WI, V, M, par, one=len(tables) == 1, widths=widths)
+    return WO, WI, V, M
 
 
-def guesses_from_arrays(WO, WI, V, M, par: Parametrization, one=False, widths=None):
+def table_features(WO, WI, V, M, one=False):
+    """What :func:`guesses_from_arrays` reads off a stack of tables before any family's own
+    starts: the diffuse floor, the generic width and the peak's reflectance.
+
+    The floor is the 10th percentile of each channel over the valid rows; the width is the
+    largest half-vector angle among the rows above half the peak's excess over the floor, as a
+    GGX alpha (``tan(theta_h) = alpha sqrt(sqrt(2) - 1)``); the reflectance is the peak's excess
+    times ``4 pi alpha^2 cos^2`` (``f ~ F / (4 pi alpha^2 cos^2)`` at ``theta_h ~ 0``).
+
+    Parameters
+    ----------
+    WO, WI, V, M : numpy.ndarray
+        As :func:`guesses_from_arrays` takes them.
+    one : bool, default False
+        The stack is a single table (for the error message).
+
+    Returns
+    -------
+    dict
+        ``floor`` (B, C), ``alpha`` (B,), ``r0`` (B, C).
+
+    Raises
+    ------
+    FitError
+        When a table has no valid row.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit.fitting._starts import table_features
+    >>> wo = np.broadcast_to([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]], (1, 2, 3)); wi = wo[:, ::-1]
+    >>> sorted(table_features(wo, wi, np.full((1, 2, 3), 0.1), np.ones((1, 2), bool)))
+    ['alpha', 'floor', 'r0']
+    """
+    V = np.asarray(V, float)
+    empty = np.flatnonzero(~M.any(axis=1))
+    if empty.size:
+        raise FitError("the table has no valid rows" if one else f"tables {empty[:10].tolist()} have no valid rows")
+    rows = np.arange(V.shape[0])
+    floor = percentile10(V, M)  # (B, C)
+    mean = np.einsum("bnc->bn", V) / V.shape[2]  # (einsum: numpy's mean over a short last axis is slower)
+    s = WO + WI
+    hz = s[..., 2] / np.maximum(np.sqrt(np.einsum("bni,bni->bn", s, s)), 1e-12)  # the half vector's cosine
+    excess = np.where(M, mean - np.where(M, mean, np.inf).min(axis=1, keepdims=True), -np.inf)
+    emax = excess.max(axis=1, keepdims=True)
+    top = M & np.where(emax > 0, excess >= 0.5 * emax, True)
+    # the largest theta_h among the top rows: arccos of their smallest cosine
+    th = np.arccos(np.clip(np.where(top, hz, np.inf).min(axis=1), -1, 1))
+    alpha = np.clip(np.tan(np.minimum(th, 1.3)) / np.sqrt(np.sqrt(2) - 1), 0.02, 0.8)
+    ipk = np.argmax(np.where(M, mean * np.abs(WI[..., 2]), -np.inf), axis=1)
+    peak = V[rows, ipk] - floor
+    co = np.maximum(np.abs(WO[rows, ipk, 2]), 0.05)
+    r0 = np.clip(peak * (4 * np.pi * alpha**2 * co**2)[:, None], 0.02, 0.9)
+    return {"floor": floor, "alpha": alpha, "r0": r0}
+
+
+def guesses_from_arrays(WO, WI, V, M, par: Parametrization, one=False, widths=None, features=None):
     """:func:`initial_guesses` of a stack of tables given as arrays: directions ``WO``, ``WI``
     ``(B, N, 3)`` (broadcast views are fine: directions shared by every table cost no copy),
     values ``V`` ``(B, N, C)`` and the valid rows ``M`` ``(B, N)``.
@@ -142,6 +204,9 @@ def guesses_from_arrays(WO, WI, V, M, par: Parametrization, one=False, widths=No
         Entries of :data:`WIDTH_ENTRIES` (scalar or ``(B,)``) replacing the generic widths read off
         the peak's half width, before the family's constant starts and its refinement (which
         then starts from them): e.g. :func:`ndf_widths`.
+    features : dict, optional
+        :func:`table_features` of these arrays, when already computed (a second guess of the
+        same table, with other widths, then costs only the family's refinement).
 
     Returns
     -------
@@ -165,33 +230,16 @@ def guesses_from_arrays(WO, WI, V, M, par: Parametrization, one=False, widths=No
     (4, 3)
     """
     V = np.asarray(V, float)
-    empty = np.flatnonzero(~M.any(axis=1))
-    if empty.size:
-        raise FitError("the table has no valid rows" if one else f"tables {empty[:10].tolist()} have no valid rows")
+    f = table_features(WO, WI, V, M, one) if features is None else features
     B = V.shape[0]
-    rows = np.arange(B)
-    floor = percentile10(V, M)  # (B, C)
-    mean = np.einsum("bnc->bn", V) / V.shape[2]  # (einsum: numpy's mean over a short last axis is slower)
-    s = WO + WI
-    hz = s[..., 2] / np.maximum(np.sqrt(np.einsum("bni,bni->bn", s, s)), 1e-12)  # the half vector's cosine
-    excess = np.where(M, mean - np.where(M, mean, np.inf).min(axis=1, keepdims=True), -np.inf)
-    emax = excess.max(axis=1, keepdims=True)
-    top = M & np.where(emax > 0, excess >= 0.5 * emax, True)
-    # the largest theta_h among the top rows: arccos of their smallest cosine
-    th = np.arccos(np.clip(np.where(top, hz, np.inf).min(axis=1), -1, 1))
-    alpha = np.clip(np.tan(np.minimum(th, 1.3)) / np.sqrt(np.sqrt(2) - 1), 0.02, 0.8)
-    ipk = np.argmax(np.where(M, mean * np.abs(WI[..., 2]), -np.inf), axis=1)
-    peak = V[rows, ipk] - floor
-    co = np.maximum(np.abs(WO[rows, ipk, 2]), 0.05)
-    # At the peak (theta_h ~ 0): f ~ F / (4 pi alpha^2 cos^2), so F ~ f 4 pi alpha^2 cos^2.
-    r0 = np.clip(peak * (4 * np.pi * alpha**2 * co**2)[:, None], 0.02, 0.9)
+    alpha, r0 = f["alpha"], f["r0"]
     k = 2 * np.sqrt(r0 / (1 - r0))
     ones = np.ones_like(r0)
     guess = {
-        "albedo": np.clip(np.pi * floor, 0.01, 0.95),
-        "alpha": alpha.copy(), "alpha_base": alpha, "alpha_coat": np.maximum(alpha / 2, 0.02),
+        "albedo": np.clip(np.pi * f["floor"], 0.01, 0.95),
+        "alpha": alpha.copy(), "alpha_base": alpha.copy(), "alpha_coat": np.maximum(alpha / 2, 0.02),
         "eta": ones.copy(),
-        "k": k.copy(), "eta_base": ones, "k_base": k, "eta_coat": np.full(B, 1.5), "f0": r0,
+        "k": k.copy(), "eta_base": ones, "k_base": k, "eta_coat": np.full(B, 1.5), "f0": r0.copy(),
     }
     for name, value in (widths or {}).items():
         if name not in WIDTH_ENTRIES:
@@ -331,7 +379,10 @@ def fit_starts(table, par, n, seed, objective, arrays, init=None):
     >>> fit_starts(t, par, 3, 0, obj, table_arrays(t, None)).shape
     (3, 3)
     """
-    g = initial_guess(table, par)
+    # the table's arrays and features once: the ndf candidate below is a second guess of them
+    arrays_np = _stacked([table])
+    features = table_features(*arrays_np, one=True)
+    g = {k: v[0] for k, v in guesses_from_arrays(*arrays_np, par, one=True, features=features).items()}
     if init is not None:
         g.update(init)
     to_z = compiled_helpers(par)["z_from_theta"]
@@ -341,7 +392,8 @@ def fit_starts(table, par, n, seed, objective, arrays, init=None):
     if n > 1 and NDF_CANDIDATE and reads_widths:
         widths = ndf_widths(table, np.asarray(g["albedo"], float) / np.pi if "albedo" in g else 0.0)
         if widths is not None:
-            gn = {k: v[0] for k, v in initial_guesses([table], par, widths=widths).items()}
+            gn = {k: v[0] for k, v in guesses_from_arrays(*arrays_np, par, one=True, widths=widths,
+                                                          features=features).items()}
             gn.update(init or {})
             zn = np.asarray(to_z(gn)).astype(base.dtype)[None]
             if np.all(np.isfinite(zn)) and not np.allclose(zn, base):
