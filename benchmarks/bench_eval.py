@@ -24,6 +24,15 @@ difference over the entries above 1e-6 of the largest value).
     python benchmarks/bench_eval.py [--n 1000000] [--repeat 7] [--models conductor_ggx,lambert]
                                     [--devices 1] [--no-mitsuba] [--out benchmarks/results/bench_eval.json]
 
+``--alone R`` measures instead each contender (numpy, ``jax.jit(model.eval)`` float32, Mitsuba) in
+a process of its own, ``R`` rounds of the three processes in turn: nothing else runs in the
+process while one is timed. In one process, Mitsuba's worker threads keep spinning for about
+10 ms after each of its calls (measured with ``os.times``), and an XLA call right after one ran
+several times slower; the interleaved run above orders the contenders so that none follows
+Mitsuba directly. Each sample there is one call after other work (cold caches). In ``--alone``
+each sample is a warm call followed by ``--number`` timed calls; a contender's figure is the
+median over rounds of its per-process medians. Writes ``bench_eval_alone.json``.
+
 The host device count must be fixed before JAX starts, so it is set from ``--devices`` (default:
 1, see ``benchmarks/bench_cores.py``) at the top of ``main``.
 """
@@ -201,8 +210,18 @@ def main(argv=None):
     ap.add_argument("--mitsuba-variant", default="llvm_ad_rgb",
                     help="Mitsuba's JIT variant: llvm_ad_rgb (CPU) or cuda_ad_rgb (GPU runs)")
     ap.add_argument("--numpy-n", type=int, default=None, help="pairs for the numpy baselines (default: --n)")
-    ap.add_argument("--out", default=str(RESULTS_DIR / "bench_eval.json"))
+    ap.add_argument("--out", default=None, help="JSON path (default RESULTS_DIR/bench_eval.json, "
+                                                "bench_eval_alone.json with --alone)")
+    ap.add_argument("--alone", type=int, default=0, metavar="ROUNDS",
+                    help="each contender in a process of its own, ROUNDS rounds (see the docstring)")
+    ap.add_argument("--number", type=int, default=5, help="calls per timed sample with --alone")
+    ap.add_argument("--alone-child", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.alone_child:
+        return alone_child(args)
+    if args.alone:
+        return run_alone(args)
+    args.out = args.out or str(RESULTS_DIR / "bench_eval.json")
     load_start = machine_info()["uptime"]
 
     import jax
@@ -327,6 +346,107 @@ def main(argv=None):
                    extra={"mitsuba": mit_note, "load_start": load_start, "load_after": machine_info()["uptime"],
                           "niceness": os.nice(0)},
                    path=args.out)
+    print(f"wrote {p}")
+
+
+# --------------------------------------------------------------------------------------------------
+# --alone: every contender in a process of its own
+
+ALONE = ("numpy", "eval_f32", "mitsuba")
+ALONE_CALLS = {"numpy": "the numpy reference (numpy_ref), float64",
+               "eval_f32": "jax.jit(lambda m, wo, wi: m.eval(wo, wi))(model, wo, wi); wo, wi (N, 3) float32",
+               "mitsuba": "mi.load_dict(d).eval(ctx, si, wi) (plain call)"}
+
+
+def alone_child(args):
+    """One contender (``--alone-child``) on every model it has: prints ``RESULT {model: median s}``."""
+    import json
+
+    import jax
+    import jax.numpy as jnp
+
+    import matfit.models as M
+    import numpy_ref as R
+    from _common import block
+
+    who = args.alone_child
+    if who == "mitsuba":
+        B_mit, note = load_mitsuba(True, args.mitsuba_variant)
+        if B_mit is None:
+            print("RESULT " + json.dumps({"error": note}))
+            return
+    out = {}
+    for name, make, dkind, np_fn, mi_dict, _ in model_specs(jnp, M, R):
+        if args.models != "all" and name not in args.models.split(","):
+            continue
+        wo, wi = directions(R, args.n, dkind)
+        if who == "numpy":
+            if np_fn is None:
+                continue
+            fn, number = (lambda f=np_fn: f(wo, wi)), 1
+        elif who == "mitsuba":
+            if mi_dict is None:
+                continue
+            fn, number = mitsuba_eval(B_mit, mi_dict, wo.astype(np.float32), wi.astype(np.float32))[0]["mitsuba"], args.number
+        else:
+            if name == "stochastic_layered":
+                continue
+            f = jax.jit(lambda m, x, y: m.eval(x, y))
+            model, a, b = make(jnp.float32), jnp.asarray(wo, jnp.float32), jnp.asarray(wi, jnp.float32)
+            fn, number = (lambda: f(model, a, b)), args.number
+        block(fn())
+        times = []
+        for _ in range(args.repeat):
+            block(fn())
+            t0 = time.perf_counter()
+            for _ in range(number):
+                block(fn())
+            times.append((time.perf_counter() - t0) / number)
+        out[name] = float(np.median(times))
+    print("RESULT " + json.dumps(out), flush=True)
+
+
+def run_alone(args):
+    import json
+    import subprocess
+
+    load_start = machine_info()["uptime"]
+    runs = {who: [] for who in ALONE}
+    for _ in range(args.alone):
+        for who in ALONE:
+            cmd = [sys.executable, __file__, "--alone-child", who, "--models", args.models, "--n", str(args.n),
+                   "--repeat", str(args.repeat), "--number", str(args.number), "--mitsuba-variant", args.mitsuba_variant]
+            p = subprocess.run(cmd, capture_output=True, text=True)
+            lines = [ln for ln in p.stdout.splitlines() if ln.startswith("RESULT ")]
+            if p.returncode or not lines:
+                raise RuntimeError(f"{' '.join(cmd)} failed:\n{p.stderr[-3000:]}")
+            res = json.loads(lines[-1][len("RESULT "):])
+            if "error" in res:
+                print(f"{who} skipped: {res['error']}")
+                continue
+            runs[who].append(res)
+    names = list(dict.fromkeys(m for who in ("eval_f32", "mitsuba", "numpy") for r in runs[who] for m in r))
+    rows = []
+    for name in names:
+        row = {"model": name, "n": args.n, "calls": ALONE_CALLS}
+        for who in ALONE:
+            ts = [r[name] for r in runs[who] if name in r]
+            if ts:
+                row[f"{who}_s_per_round"] = ts
+                row[f"{who}_Mps"] = args.n / float(np.median(ts)) / 1e6
+        if "eval_f32_Mps" in row:
+            for who in ("numpy", "mitsuba"):
+                if f"{who}_Mps" in row:
+                    row[f"eval_f32_vs_{who}"] = row["eval_f32_Mps"] / row[f"{who}_Mps"]
+        rows.append(row)
+    print(f"\nN = {args.n} pairs; each contender alone in its process, {args.alone} round(s); M evaluations/s "
+          f"(median over rounds of the median of {args.repeat} samples)")
+    print_table(rows, [("model", "model", "s"), ("numpy_Mps", "numpy", ".2f"), ("eval_f32_Mps", "eval f32", ".1f"),
+                       ("mitsuba_Mps", "mitsuba", ".1f"), ("eval_f32_vs_numpy", "eval/np", ".0f"),
+                       ("eval_f32_vs_mitsuba", "eval/mi", ".2f")])
+    p = write_json("bench_eval_alone", rows, args=vars(args),
+                   extra={"load_start": load_start, "load_after": machine_info()["uptime"]},
+                   path=args.out or RESULTS_DIR / "bench_eval_alone.json")
     print(f"wrote {p}")
 
 

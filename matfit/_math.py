@@ -773,12 +773,59 @@ def refract(wi, n, eta):
     eta = jnp.where(flip, 1 / eta, eta)
     cos_i = jnp.abs(cos_i)
     n = jnp.where(flip[..., None], -n, n)
-    # cos^2 theta_t = (eta^2 - 1 + cos_i^2) / eta^2: no cancellation near grazing or at eta ~ 1.
-    cos2_t = (eta * eta - 1 + cos_i * cos_i) / (eta * eta)
+    cos2_t = _refracted_cos2(cos_i, eta, 1 / eta)
     ok = cos2_t > 0
     cos_t = safe_sqrt(cos2_t)
+    # divisions by eta, correctly rounded: the sampled direction and the pdf recomputed from it
+    # agree to float32 rounding even near eta = 1, where the transmission Jacobian amplifies them
     wt = -wi / eta[..., None] + (cos_i / eta - cos_t)[..., None] * n
     return wt, ok
+
+
+def _refracted_cos2(cos_i, eta, inv):
+    """``cos^2 theta_t = (eta^2 - 1 + cos_i^2) / eta^2`` (no cancellation near grazing or at
+    eta ~ 1), with ``inv = 1 / eta`` given: for a scalar index a product per direction, not a
+    division (XLA's CPU backend repeats a direction's divisions in every loop that reads it)."""
+    return (eta * eta - 1 + cos_i * cos_i) * (inv * inv)
+
+
+def refract_into(w, eta):
+    """A direction above the surface refracted through the flat interface (normal ``(0, 0, 1)``)
+    into the medium below, of relative index ``eta``, and mirrored back up: the direction inside
+    a layer under a smooth coat, ``(w_x / eta, w_y / eta, cos theta_t)``.
+
+    :func:`refract` with the normal ``(0, 0, 1)``, written in components so that it takes a
+    :class:`Vec3` as well as a ``(..., 3)`` array (and returns the same kind); ``eta`` a scalar
+    or of the batch shape.
+
+    Parameters
+    ----------
+    w : Vec3 or array_like, shape (..., 3)
+        Unit directions with ``w_z > 0``.
+    eta : array_like
+        Index of the medium below over that above.
+
+    Returns
+    -------
+    wt : Vec3 or jax.Array, shape (..., 3)
+        The refracted direction, pointing up.
+    ok : jax.Array of bool, shape (...)
+        False where no direction is transmitted (total internal reflection, for ``eta < 1``).
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from matfit._math import refract_into
+    >>> wt, ok = refract_into(jnp.array([0.6, 0.0, 0.8]), 1.5)  # Snell: sin theta_t = 0.6 / 1.5
+    >>> [round(float(x), 6) for x in wt], bool(ok)
+    ([0.4, 0.0, 0.916515], True)
+    """
+    v = w if isinstance(w, Vec3) else Vec3.from_array(w)
+    eta = jnp.asarray(eta)
+    inv = 1 / eta
+    cos2_t = _refracted_cos2(v.z, eta, inv)
+    t = Vec3(v.x * inv, v.y * inv, safe_sqrt(cos2_t))
+    return (t if isinstance(w, Vec3) else t.to_array()), cos2_t > 0
 
 
 def flip_up(v):

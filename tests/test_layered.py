@@ -690,3 +690,30 @@ def test_blend_rejects_mixed_delta_component():
         blend_smooth()
     with pytest.raises(ParameterError, match="Dirac"):
         Layered(RoughDielectric(0.3, 1.5), plastic(RHO, 0.0, 1.5, True, np.float64))
+
+
+@pytest.mark.parametrize("eta", [1.5, 1.01, 0.7])
+def test_refract_into_is_refract_through_the_normal(eta, x64):
+    """The layer's inner directions (refract_into, in components for the structure-of-arrays
+    eval) equal the general refract through the normal (0, 0, 1), mirrored up, with the same
+    total-internal-reflection flags, for arrays and Vec3 alike; and they obey Snell's law."""
+    from matfit._math import Vec3, refract, refract_into
+
+    rng = np.random.default_rng(3)
+    w = rng.normal(size=(500, 3))
+    w[:, 2] = np.abs(w[:, 2]) + 1e-3
+    w /= np.linalg.norm(w, axis=1, keepdims=True)
+    n = np.tile([0.0, 0.0, 1.0], (500, 1))
+    t_ref, ok_ref = refract(jnp.asarray(w), jnp.asarray(n), jnp.asarray(eta))
+    t, ok = refract_into(jnp.asarray(w), eta)
+    tv, okv = refract_into(Vec3.from_array(jnp.asarray(w)), eta)
+    np.testing.assert_array_equal(np.asarray(ok), np.asarray(ok_ref))
+    np.testing.assert_array_equal(np.asarray(okv), np.asarray(ok))
+    sel = np.asarray(ok)
+    assert (sel.all() if eta > 1 else (~sel).any() and sel.any())
+    np.testing.assert_allclose(np.asarray(t)[sel], -np.asarray(t_ref)[sel], rtol=1e-12, atol=1e-14)
+    np.testing.assert_array_equal(np.asarray(tv.to_array()), np.asarray(t))
+    sin_i = np.hypot(w[:, 0], w[:, 1])
+    sin_t = np.hypot(np.asarray(t)[:, 0], np.asarray(t)[:, 1])
+    np.testing.assert_allclose(sin_t[sel], sin_i[sel] / eta, rtol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(np.asarray(t)[sel], axis=1), 1.0, rtol=1e-12)

@@ -29,12 +29,12 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._math import COS_EPS, refract, safe_div, up_like
+from .._math import COS_EPS, Vec3, per_pair, refract, refract_into, safe_div, up_like
 from ..errors import ParameterError
 from ._base import AbstractBSDF
 from ._coated import AbstractCoatedBSDF
 from ._coat import coat_reflection, coat_transmittance, is_smooth, make_coat
-from ._pairs import valid_reflection
+from ._pairs import SoAPairs, valid_reflection
 from ._params import as_channels, as_param, check_directions, check_range, check_u
 from .rough_dielectric import RoughDielectric
 from .smooth_dielectric import SmoothDielectric
@@ -90,10 +90,10 @@ class Layered(AbstractCoatedBSDF):
         return max(self.base.channels, self.sigma_a.shape[-1])
 
     def _inner(self, w):
-        """Direction inside the layer (pointing up) for an outside direction ``w``."""
-        n = up_like(w)
-        t, ok = refract(w, n, self.coat.eta)
-        return -t, ok & (w[..., 2] > COS_EPS)
+        """Direction inside the layer (pointing up) for an outside direction ``w`` (a ``Vec3``
+        or a ``(..., 3)`` array, returned in kind)."""
+        t, ok = refract_into(w, self.coat.eta)
+        return t, ok & (w[..., 2] > COS_EPS)
 
     def _outer(self, w_in):
         """Outside direction for an inside direction ``w_in`` pointing up (None under TIR)."""
@@ -104,19 +104,27 @@ class Layered(AbstractCoatedBSDF):
     def _absorption(self, wo_b, wi_b):
         mo = jnp.maximum(wo_b[..., 2], COS_EPS)
         mi = jnp.maximum(wi_b[..., 2], COS_EPS)
-        return jnp.exp(-(self.sigma_a * self.thickness) * (1 / mo + 1 / mi)[..., None])
+        return jnp.exp(-(self.sigma_a * self.thickness) * per_pair(1 / mo + 1 / mi)[..., None])
 
     def eval(self, wo, wi):
         check_directions("Layered.eval", wo=wo, wi=wi)
         return self._eval_t(wo, wi, self._table())
 
     def _eval_t(self, wo, wi, table):
-        wo_b, ok_o = self._inner(wo)
-        wi_b, ok_i = self._inner(wi)
+        # The directions inside the layer as components (the base evaluates them as prepared
+        # pairs, Vec3 throughout: no interleaved (N, 3) arrays in between), and every division
+        # by the coat's index a product with its reciprocal, computed once.
+        o, i = Vec3.from_array(wo), Vec3.from_array(wi)
+        wo_b, ok_o = self._inner(o)
+        wi_b, ok_i = self._inner(i)
         ok = ok_o & ok_i
-        T = coat_transmittance(self.coat, wo[..., 2], table) * coat_transmittance(self.coat, wi[..., 2], table)
-        inner = (T / self.coat.eta**2)[..., None] * self.base.eval(wo_b, wi_b) * self._absorption(wo_b, wi_b)
-        f = coat_reflection(self.coat, wo, wi)[..., None] + jnp.where(ok[..., None], inner, 0)
+        # per-pair factors computed once per pair (per_pair), not in every channel's loop
+        T = coat_transmittance(self.coat, o.z, table) * coat_transmittance(self.coat, i.z, table)
+        inv_eta = 1 / self.coat.eta
+        scale = per_pair(jnp.where(ok, T * (inv_eta * inv_eta), 0))
+        base = self.base.eval_pairs(SoAPairs.from_directions(wo_b, wi_b))
+        inner = scale[..., None] * base * self._absorption(wo_b, wi_b)
+        f = per_pair(coat_reflection(self.coat, wo, wi))[..., None] + jnp.where(ok[..., None], inner, 0)
         both = valid_reflection(wo, wi)
         return jnp.where(both[..., None], f, 0)
 
