@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from matfit.io import load, read_alta
-from matfit.io._halfdiff import dirs_to_half_diff
+from matfit.io import dirs_to_half_diff
 
 SHARED = Path(__file__).parents[1].parent / "shared"
 PINK = SHARED / "data" / "merl_slices" / "pink-felt-1d.alta"

@@ -8,7 +8,7 @@ import pytest
 
 from matfit.io import load, read_merl, write_merl
 from matfit.io.merl import RES, SCALE, MerlBRDF, cell_centres, cell_index
-from matfit.io._halfdiff import dirs_to_half_diff, half_diff_to_dirs
+from matfit.io import dirs_to_half_diff, half_diff_to_dirs
 
 SHARED = Path(__file__).parents[1].parent / "shared"
 TOOL = SHARED / "tools" / "merl_surrogate.py"

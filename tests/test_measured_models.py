@@ -34,7 +34,7 @@ import chi2 as c2  # noqa: E402
 
 from matfit.errors import DataFormatError, ParameterError  # noqa: E402
 from matfit.io import MerlBRDF, read_rgl  # noqa: E402
-from matfit.io._halfdiff import dirs_to_half_diff, half_diff_to_dirs  # noqa: E402
+from matfit.io import dirs_to_half_diff, half_diff_to_dirs  # noqa: E402
 from matfit.io.merl import cell_centres  # noqa: E402
 from matfit.models import MeasuredMERL, MeasuredRGL, RoughConductor  # noqa: E402
 from matfit.models import Lambert  # noqa: E402

@@ -42,7 +42,7 @@ def test_geometries_are_unit_and_reflection_only(kind, kw):
 
 
 def test_merl_grid_matches_matfit_reader_geometry():
-    from matfit.io._halfdiff import dirs_to_half_diff
+    from matfit.io import dirs_to_half_diff
     from matfit.io.merl import cell_index
     wo, wi, valid, _ = geo.merl_grid(6, 6, 12)
     th, _, td, pd = dirs_to_half_diff(wo, wi)
