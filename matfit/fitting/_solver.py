@@ -77,14 +77,17 @@ def compiled_solver(family, channels, fixed_items, tied, method, loss, robust, s
             coarse = solve_prepare(sub)
             # each start alone (lax.map, not vmap): the solver's large-residual aids (the secant
             # model, the line extrapolation) cost nothing per member there
-            cz, cF, csteps, cok = jax.lax.map(
-                lambda z0: solver.solve(solve_fn, z0, coarse, max_steps, groups, large_residual=True).lm[:4], z0s)
+            subs = jax.lax.map(lambda z0: solver.solve(solve_fn, z0, coarse, max_steps, groups, large_residual=True)
+                               .lm._replace(r=None), z0s)
+            cz, cF, csteps, cok = subs[:4]
             good = jnp.isfinite(cF) & jnp.all(jnp.isfinite(cz), axis=1)
             best = jnp.argmin(jnp.where(good, cF, jnp.inf))
-            # the whole table from the best subset solution; the secant model and the line
-            # minimum after steps that beat the model save full-table iterations of
-            # large-residual fits (lm.LevenbergMarquardtFD)
-            zb, steps, ok, res = solver.solve(solve_fn, cz[best], prepared, max_steps, groups, wide, large_residual=True)
+            # the whole table from the best subset solution, with its damping and secant model;
+            # the secant model and the line minimum after steps that beat the model save
+            # full-table iterations of large-residual fits (lm.LevenbergMarquardtFD)
+            warm = jax.tree_util.tree_map(lambda x: x[best], subs)
+            zb, steps, ok, res = solver.solve(solve_fn, cz[best], prepared, max_steps, groups, wide, large_residual=True,
+                                              warm=warm)
             others = jax.lax.map(lambda z: half_sq(solve_fn(z, prepared)), cz) if z0s.shape[0] > 1 else res.F[None]
             z = cz.at[best].set(zb)
             obj = others.at[best].set(res.F)

@@ -562,14 +562,20 @@ class LMResult(NamedTuple):
         Model evaluations.
     r : jax.Array or tuple
         The residuals at ``z``, in ``fn``'s layout.
+    mu : jax.Array
+        The damping at the end.
+    S : jax.Array (p, p)
+        The secant model of the second-order term (zeros without ``secant``).
+    aug : jax.Array of bool
+        Whether the next step would have used ``J^T J + S``.
 
     Examples
     --------
     >>> import numpy as np, jax.numpy as jnp
     >>> from matfit.fitting.lm import lm_fd
     >>> res = lm_fd(lambda z, a: (z - a)[None, :], jnp.zeros(1), jnp.ones(1), np.eye(1), np.ones((1, 1)))
-    >>> sorted(res._fields)[:3], float(res.F) < 1e-12
-    (['A', 'F', 'converged'], True)
+    >>> res._fields[:4], float(res.F) < 1e-12
+    (('z', 'F', 'steps', 'converged'), True)
     """
 
     z: jax.Array
@@ -579,6 +585,9 @@ class LMResult(NamedTuple):
     A: jax.Array
     evals: jax.Array
     r: object
+    mu: jax.Array
+    S: jax.Array
+    aug: jax.Array
 
 
 class GroupedDifferences(eqx.Module):
@@ -846,7 +855,7 @@ class LevenbergMarquardtFD(eqx.Module):
     extrapolate: bool = eqx.field(default=False, static=True)
     secant: bool = eqx.field(default=False, static=True)
 
-    def minimise(self, fn, z0, args, seeds, owner, max_steps=100, wide=False) -> LMResult:
+    def minimise(self, fn, z0, args, seeds, owner, max_steps=100, wide=False, warm=None) -> LMResult:
         """Minimize ``0.5 |fn(z, args)|^2`` from ``z0``.
 
         Parameters
@@ -864,6 +873,10 @@ class LevenbergMarquardtFD(eqx.Module):
             Maximum number of Jacobians (accepted steps).
         wide : bool, default False
             Sum the moments in float64 (when x64 is on) and return ``A`` so, for covariances.
+        warm : LMResult, optional
+            A solution of the same problem on a subset of its rows (``fit``'s subset starts):
+            its damping, and its secant model scaled by the ratio of the two ``J^T J`` traces,
+            start this solve, instead of the initial damping and ``S = 0``.
 
         Returns
         -------
@@ -886,10 +899,16 @@ class LevenbergMarquardtFD(eqx.Module):
         per_jac = self.jacobian.evaluations(len(seeds), dt)
         F0, A0, g0, r0 = self.jacobian(fn, z0, args, seeds, owner, wide=wide)
         mu0, nu0 = self.damping.init(dt)
+        S0, aug0 = jnp.zeros_like(A0), jnp.asarray(False)
+        if warm is not None:
+            # a subset's S and J^T J both sum over its rows: S scales with the traces' ratio
+            ratio = jnp.trace(A0) / jnp.maximum(jnp.trace(warm.A), jnp.finfo(warm.A.dtype).tiny)
+            mu0 = jnp.asarray(warm.mu, mu0.dtype)
+            S0, aug0 = (warm.S * ratio).astype(A0.dtype), jnp.asarray(warm.aug)
         s = _State(z0, F0, A0, g0, r0, mu0, nu0, jnp.asarray(0), jnp.asarray(1 + per_jac),
                    jnp.asarray(False), jnp.asarray(False), jnp.asarray(0),
                    jnp.maximum(jnp.diag(A0), jnp.finfo(dt).eps * jnp.max(jnp.diag(A0)) + jnp.finfo(dt).tiny),
-                   jnp.zeros_like(A0), jnp.asarray(False))
+                   S0, aug0)
 
         # One flat loop: every iteration is one trial step and the Jacobian at the (possibly
         # unchanged) point. Under vmap (batched fits) a nested loop of rejections would make every
@@ -929,11 +948,11 @@ class LevenbergMarquardtFD(eqx.Module):
         small_g0 = self.termination.at_start(g0)
         s = s._replace(done=small_g0, ok=small_g0)
         s = jax.lax.while_loop(cond, body, s)
-        return LMResult(s.z, s.F, s.steps, s.ok, s.A, s.evals, s.r)
+        return LMResult(s.z, s.F, s.steps, s.ok, s.A, s.evals, s.r, s.mu, s.S, s.aug)
 
 
 def lm_fd(fn, z0, args, seeds, owner, max_steps=100, rtol=1e-8, atol=1e-10, central=None, max_reject=12,
-          tau=1e-3, max_step=3.0, wide=False, extrapolate=False, secant=False) -> LMResult:
+          tau=1e-3, max_step=3.0, wide=False, extrapolate=False, secant=False, warm=None) -> LMResult:
     """Minimize ``0.5 |fn(z, args)|^2`` from ``z0`` with :class:`LevenbergMarquardtFD` built from
     these options (see the module docstring).
 
@@ -967,6 +986,9 @@ def lm_fd(fn, z0, args, seeds, owner, max_steps=100, rtol=1e-8, atol=1e-10, cent
         Line extrapolation after steps that beat the model (:class:`LevenbergMarquardtFD`).
     secant : bool, default False
         The secant model of the Hessian's second-order term (:class:`LevenbergMarquardtFD`).
+    warm : LMResult, optional
+        A subset's solution whose damping and secant model start this solve
+        (:meth:`LevenbergMarquardtFD.minimise`).
 
     Returns
     -------
@@ -985,4 +1007,4 @@ def lm_fd(fn, z0, args, seeds, owner, max_steps=100, rtol=1e-8, atol=1e-10, cent
     """
     solver = LevenbergMarquardtFD(GroupedDifferences(central), BoxedDampedStep(max_step), NielsenDamping(tau),
                                   StepTermination(rtol, atol, max_reject), extrapolate, secant)
-    return solver.minimise(fn, z0, args, seeds, owner, max_steps=max_steps, wide=wide)
+    return solver.minimise(fn, z0, args, seeds, owner, max_steps=max_steps, wide=wide, warm=warm)

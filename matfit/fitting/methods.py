@@ -14,7 +14,7 @@ Every method builds a solver object (:class:`AbstractSolver`: an equinox module,
 and final subclasses) from the tolerances, ``Method.build(rtol, atol)``. A solver declares what
 it needs and gives (:attr:`~AbstractSolver.residuals`, :attr:`~AbstractSolver.normal_equations`,
 :attr:`~AbstractSolver.traces`) and solves with one signature,
-``solver.solve(fn, z0, args, max_steps, groups, wide, large_residual) -> Solution``, where
+``solver.solve(fn, z0, args, max_steps, groups, wide, large_residual, warm) -> Solution``, where
 ``fn(z, args)`` are the residuals (flat, or ``(N, C)`` / channel-split for ``lm_fd``) and
 ``groups`` the column groups of :func:`~matfit.fitting.lm.column_groups`. ``lm_fd``'s solver is
 :class:`~matfit.fitting.lm.LevenbergMarquardtFD`, composed of a Jacobian, a descent, a damping
@@ -112,7 +112,7 @@ class AbstractSolver(eqx.Module):
     traces: ClassVar[bool] = False
 
     @abc.abstractmethod
-    def solve(self, fn, z0, args, max_steps, groups=None, wide=False, large_residual=False) -> Solution:
+    def solve(self, fn, z0, args, max_steps, groups=None, wide=False, large_residual=False, warm=None) -> Solution:
         """Minimize ``0.5 |fn(z, args)|^2`` from ``z0``.
 
         Parameters
@@ -134,6 +134,9 @@ class AbstractSolver(eqx.Module):
             iteration on fewer iterations of a large-residual problem, the line extrapolation
             after steps that beat the model and the secant model of the Hessian's second-order
             term (:class:`~matfit.fitting.lm.LevenbergMarquardtFD`); the other solvers ignore it.
+        warm : LMResult, optional
+            ``lm_fd``: the solution of the same problem on a subset of the rows, whose damping
+            and secant model start this solve; the other solvers ignore it.
 
         Returns
         -------
@@ -199,9 +202,9 @@ class LMFDSolver(AbstractSolver):
     residuals: ClassVar[str] = "channels"
     normal_equations: ClassVar[bool] = True
 
-    def solve(self, fn, z0, args, max_steps, groups=None, wide=False, large_residual=False) -> Solution:
+    def solve(self, fn, z0, args, max_steps, groups=None, wide=False, large_residual=False, warm=None) -> Solution:
         res = lm_fd(fn, z0, args, *groups, max_steps=max_steps, rtol=self.rtol, atol=self.atol, wide=wide,
-                    extrapolate=large_residual, secant=large_residual)
+                    extrapolate=large_residual, secant=large_residual, warm=warm)
         return Solution(res.z, res.steps, res.converged, res)
 
 
@@ -235,7 +238,7 @@ class OptimistixLeastSquares(AbstractSolver):
 
         return getattr(optx, _OPTX_LS[self.kind])(rtol=self.rtol, atol=self.atol, **kw)
 
-    def solve(self, fn, z0, args, max_steps, groups=None, wide=False, large_residual=False) -> Solution:
+    def solve(self, fn, z0, args, max_steps, groups=None, wide=False, large_residual=False, warm=None) -> Solution:
         import optimistix as optx
 
         sol = optx.least_squares(fn, self._solver(), z0, args=args, max_steps=max_steps, throw=False)
@@ -270,7 +273,7 @@ class OptimistixBFGS(AbstractSolver):
     1.0
     """
 
-    def solve(self, fn, z0, args, max_steps, groups=None, wide=False, large_residual=False) -> Solution:
+    def solve(self, fn, z0, args, max_steps, groups=None, wide=False, large_residual=False, warm=None) -> Solution:
         import optimistix as optx
 
         sol = optx.minimise(_objective(fn), optx.BFGS(rtol=self.rtol, atol=self.atol), z0, args=args,
@@ -294,7 +297,7 @@ class JaxoptLBFGS(AbstractSolver):
     1.0
     """
 
-    def solve(self, fn, z0, args, max_steps, groups=None, wide=False, large_residual=False) -> Solution:
+    def solve(self, fn, z0, args, max_steps, groups=None, wide=False, large_residual=False, warm=None) -> Solution:
         import jaxopt
 
         res = jaxopt.LBFGS(fun=_objective(fn), maxiter=max_steps, tol=self.atol).run(z0, args)
@@ -317,7 +320,7 @@ class JaxoptLM(AbstractSolver):
     1.0
     """
 
-    def solve(self, fn, z0, args, max_steps, groups=None, wide=False, large_residual=False) -> Solution:
+    def solve(self, fn, z0, args, max_steps, groups=None, wide=False, large_residual=False, warm=None) -> Solution:
         import jaxopt
 
         res = jaxopt.LevenbergMarquardt(residual_fun=fn, maxiter=max_steps, xtol=self.rtol, gtol=self.atol).run(z0, args)
