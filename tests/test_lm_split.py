@@ -193,6 +193,17 @@ def test_spd_solve_matches_numpy_under_vmap(dt, tol, x64):
     assert np.max(np.abs(x - ref) / np.abs(ref).max(axis=1, keepdims=True)) < tol
 
 
+def _exp_objective(t, y):
+    """0.5 |z0 exp(z1 t) - y|^2 and its analytic gradient (numpy): the reference minimum."""
+
+    def F_and_grad(z):
+        e = np.exp(z[1] * t)
+        r = z[0] * e - y
+        return 0.5 * r @ r, np.array([r @ e, r @ (z[0] * t * e)])
+
+    return F_and_grad
+
+
 def test_secant_model_converges_where_gauss_newton_crawls(x64):
     """A large-residual fit (an exponential against a curve it cannot follow): Gauss-Newton
     converges only linearly there and the objective's stopping test ends it above the minimum;
@@ -208,12 +219,7 @@ def test_secant_model_converges_where_gauss_newton_crawls(x64):
     sec = lm_fd(fn, z0, jnp.asarray(t), np.eye(2), np.ones((1, 2)), max_steps=500, secant=True)
     assert bool(gn.converged) and bool(sec.converged)
 
-    def F_and_grad(z):
-        e = np.exp(z[1] * t)
-        r = z[0] * e - y
-        return 0.5 * r @ r, np.array([r @ e, r @ (z[0] * t * e)])
-
-    ref = minimize(F_and_grad, np.asarray(sec.z), jac=True, method="BFGS", options=dict(gtol=1e-9))
+    ref = minimize(_exp_objective(t, y), np.asarray(sec.z), jac=True, method="BFGS", options=dict(gtol=1e-9))
     F_min = min(float(ref.fun), float(sec.F), float(gn.F))
     assert float(sec.F) - F_min <= 1e-10 * F_min
     assert float(gn.F) - F_min > 10 * (float(sec.F) - F_min)
@@ -238,12 +244,7 @@ def test_warm_start_from_a_subset_keeps_the_minimum_and_saves_steps(x64):
     warm = lm_fd(fn, first.z, full, *groups, max_steps=500, secant=True, warm=first)
     assert bool(cold.converged) and bool(warm.converged)
 
-    def F_and_grad(z):
-        e = np.exp(z[1] * t)
-        r = z[0] * e - y
-        return 0.5 * r @ r, np.array([r @ e, r @ (z[0] * t * e)])
-
-    ref = minimize(F_and_grad, np.asarray(warm.z), jac=True, method="BFGS", options=dict(gtol=1e-9))
+    ref = minimize(_exp_objective(t, y), np.asarray(warm.z), jac=True, method="BFGS", options=dict(gtol=1e-9))
     F_min = min(float(ref.fun), float(warm.F), float(cold.F))
     assert float(warm.F) - F_min <= 1e-10 * F_min
     assert int(warm.steps) < int(cold.steps)
