@@ -371,8 +371,8 @@ def alone_child(args):
 
     who = args.alone_child
     if who == "mitsuba":
-        B_mit, note = load_mitsuba(True, args.mitsuba_variant)
-        if B_mit is None:
+        mit, note = load_mitsuba(True, args.mitsuba_variant)
+        if mit is None:
             print("RESULT " + json.dumps({"error": note}))
             return
     out = {}
@@ -387,7 +387,7 @@ def alone_child(args):
         elif who == "mitsuba":
             if mi_dict is None:
                 continue
-            fn, number = mitsuba_eval(B_mit, mi_dict, wo.astype(np.float32), wi.astype(np.float32))[0]["mitsuba"], args.number
+            fn, number = mitsuba_eval(mit, mi_dict, wo.astype(np.float32), wi.astype(np.float32))[0]["mitsuba"], args.number
         else:
             if name == "stochastic_layered":
                 continue

@@ -773,7 +773,7 @@ def refract(wi, n, eta):
     eta = jnp.where(flip, 1 / eta, eta)
     cos_i = jnp.abs(cos_i)
     n = jnp.where(flip[..., None], -n, n)
-    cos2_t = _refracted_cos2(cos_i, eta, 1 / eta)
+    cos2_t = refracted_cos2(cos_i, eta, 1 / eta)
     ok = cos2_t > 0
     cos_t = safe_sqrt(cos2_t)
     # divisions by eta, correctly rounded: the sampled direction and the pdf recomputed from it
@@ -782,10 +782,34 @@ def refract(wi, n, eta):
     return wt, ok
 
 
-def _refracted_cos2(cos_i, eta, inv):
-    """``cos^2 theta_t = (eta^2 - 1 + cos_i^2) / eta^2`` (no cancellation near grazing or at
-    eta ~ 1), with ``inv = 1 / eta`` given: for a scalar index a product per direction, not a
-    division (XLA's CPU backend repeats a direction's divisions in every loop that reads it)."""
+def refracted_cos2(cos_i, eta, inv):
+    """``cos^2 theta_t = (eta^2 - 1 + cos_i^2) / eta^2``, Snell's law for the transmitted
+    cosine, with ``inv = 1 / eta`` given.
+
+    Written so (not ``1 - (1 - cos_i^2) / eta^2``) it keeps its digits near grazing incidence and
+    at eta ~ 1 (float32: ``1 - c^2`` rounds to 1 at c = 1e-4); for a scalar index it is a product
+    per direction, not a division (XLA's CPU backend repeats a direction's divisions in every loop
+    that reads it). Negative under total internal reflection.
+
+    Parameters
+    ----------
+    cos_i : array_like
+        Cosine of the incidence angle.
+    eta : array_like
+        Relative index of the side entered.
+    inv : array_like
+        ``1 / eta``.
+
+    Returns
+    -------
+    jax.Array
+
+    Examples
+    --------
+    >>> from matfit._math import refracted_cos2
+    >>> round(float(refracted_cos2(0.8, 1.5, 1 / 1.5)), 6)  # 1 - 0.36 / 2.25
+    0.84
+    """
     return (eta * eta - 1 + cos_i * cos_i) * (inv * inv)
 
 
@@ -823,7 +847,7 @@ def refract_into(w, eta):
     v = w if isinstance(w, Vec3) else Vec3.from_array(w)
     eta = jnp.asarray(eta)
     inv = 1 / eta
-    cos2_t = _refracted_cos2(v.z, eta, inv)
+    cos2_t = refracted_cos2(v.z, eta, inv)
     t = Vec3(v.x * inv, v.y * inv, safe_sqrt(cos2_t))
     return (t if isinstance(w, Vec3) else t.to_array()), cos2_t > 0
 

@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._math import safe_div, safe_sqrt, sq
+from ._math import refracted_cos2, safe_div, safe_sqrt, sq
 from ._check import check_range
 from .errors import ParameterError
 
@@ -58,14 +58,11 @@ def fresnel_dielectric(cos_theta_i, eta):
     eta = jnp.asarray(eta)
     inside = c < 0
     inv = 1 / eta
-    # 1/eta^2 from the (usually scalar) index, so that no division is left per direction before
+    # 1/eta from the (usually scalar) index, so that no division is left per direction before
     # the reflectances' own: the whole formula is then one loop (see matfit._math.per_pair)
-    inv_e2 = jnp.where(inside, eta * eta, inv * inv)
-    eta = jnp.where(inside, inv, eta)
+    eta, inv = jnp.where(inside, inv, eta), jnp.where(inside, eta, inv)
     c = jnp.abs(c)
-    # cos^2 theta_t = 1 - (1 - c^2)/eta^2, written as (eta^2 - 1 + c^2)/eta^2 so that it keeps
-    # its digits near grazing incidence and at eta ~ 1 (float32: 1 - c^2 rounds to 1 at c = 1e-4).
-    cos2_t = (eta * eta - 1 + c * c) * inv_e2
+    cos2_t = refracted_cos2(c, eta, inv)
     tir = cos2_t <= 0
     grazing = c <= 0
     cos_t = safe_sqrt(cos2_t)
