@@ -33,7 +33,15 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["cache_dir", "enable_compilation_cache", "persistent_jit"]
+__all__ = ["cache_dir", "enable_compilation_cache", "persistent_jit", "LOOP_COMPILER_OPTIONS", "loop_jit"]
+
+#: XLA options of the programs that iterate over a whole table (the solvers). XLA's
+#: while-loop-invariant code motion hoists everything in a loop body that depends only on the
+#: table (clamped cosines, table indices, ...) out of the loop; the body then reads each of those
+#: as an array written once, and on XLA's CPU backend reading a dozen million-entry arrays per
+#: iteration costs more than recomputing them inside the loop's fused kernels: an LM iteration
+#: on a full MERL table ran about half as fast (figures in ``docs/performance.md``).
+LOOP_COMPILER_OPTIONS = {"xla_disable_hlo_passes": "while-loop-invariant-code-motion"}
 
 #: Where :func:`persistent_jit` keeps exported programs; set by :func:`enable_compilation_cache`.
 _exported_dir: Path | None = None
@@ -133,12 +141,44 @@ def _plain(key) -> bool:
     return False
 
 
+def loop_jit(fun, **kwargs):
+    """:func:`jax.jit` with :data:`LOOP_COMPILER_OPTIONS`: for programs whose loops run over a
+    whole table.
+
+    Parameters
+    ----------
+    fun : callable
+        The function to compile.
+    **kwargs
+        Passed on to :func:`jax.jit`.
+
+    Returns
+    -------
+    callable
+
+    Examples
+    --------
+    >>> import jax, jax.numpy as jnp
+    >>> from matfit.cache import loop_jit
+    >>> f = loop_jit(lambda x: jax.lax.fori_loop(0, 3, lambda i, a: a + x, jnp.zeros_like(x)))
+    >>> f(jnp.arange(3.0)).tolist()
+    [0.0, 3.0, 6.0]
+    """
+    import jax
+
+    return jax.jit(fun, compiler_options=LOOP_COMPILER_OPTIONS, **kwargs)
+
+
 class _PersistentJit:
     """The callable of :func:`persistent_jit`."""
 
-    def __init__(self, jitted, key):
-        self.jitted = jitted
+    def __init__(self, jitted, key, compiler_options=None):
+        import jax
+
+        self.jitted = jitted  # under a transformation (JAX takes compiler options at the top only)
         self.key = key
+        self.compiler_options = compiler_options
+        self.top = jitted if not compiler_options else jax.jit(jitted.__wrapped__, compiler_options=compiler_options)
         self.loaded = {}  # signature -> jitted call of the exported program
         self.__wrapped__ = jitted
 
@@ -147,10 +187,10 @@ class _PersistentJit:
 
         where = _exported_dir
         leaves, tree = jax.tree_util.tree_flatten(args)
-        if (where is None or not _plain(self.key)
-                or not all(isinstance(x, (jax.Array, np.ndarray)) and not isinstance(x, jax.core.Tracer)
-                           for x in leaves)):
+        if any(isinstance(x, jax.core.Tracer) for x in leaves):
             return self.jitted(*args)
+        if where is None or not _plain(self.key) or not all(isinstance(x, (jax.Array, np.ndarray)) for x in leaves):
+            return self.top(*args)
         sig = (str(tree), tuple((x.shape, str(jax.dtypes.canonicalize_dtype(x.dtype))) for x in leaves))
         call = self.loaded.get(sig)
         if call is None:
@@ -172,7 +212,7 @@ class _PersistentJit:
                 exp = export.export(self.jitted)(*args)
                 blob = exp.serialize()
             except Exception:  # noqa: BLE001 - a program jax.export cannot serialize: plain jit
-                return self.jitted
+                return self.top
             try:
                 where.mkdir(parents=True, exist_ok=True)
                 tmp = path.with_suffix(f".{os.getpid()}.tmp")
@@ -180,10 +220,10 @@ class _PersistentJit:
                 os.replace(tmp, path)
             except OSError:
                 pass
-        return jax.jit(exp.call)
+        return jax.jit(exp.call, compiler_options=self.compiler_options)
 
 
-def persistent_jit(jitted, key):
+def persistent_jit(jitted, key, compiler_options=None):
     """``jitted`` (a :func:`jax.jit` function), whose traced program is kept across processes.
 
     With the compilation cache on (:func:`enable_compilation_cache`) the first call for each
@@ -196,10 +236,14 @@ def persistent_jit(jitted, key):
     Parameters
     ----------
     jitted : callable
-        A :func:`jax.jit` function of arrays (pytrees of arrays) only.
+        A :func:`jax.jit` function of arrays (pytrees of arrays) only, without compiler options
+        (JAX refuses them on a jit called inside a transformation).
     key : tuple
         Everything ``jitted``'s program depends on besides its arguments' shapes and dtypes
         (strings, numbers, tuples of them): the configuration it was built for.
+    compiler_options : dict, optional
+        The XLA options ``jitted`` was compiled with (e.g. :data:`LOOP_COMPILER_OPTIONS`), used
+        again to compile the program read back.
 
     Returns
     -------
@@ -213,4 +257,4 @@ def persistent_jit(jitted, key):
     >>> f(jnp.arange(3.0)).tolist()
     [0.0, 2.0, 4.0]
     """
-    return _PersistentJit(jitted, key)
+    return _PersistentJit(jitted, key, compiler_options)

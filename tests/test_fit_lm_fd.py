@@ -101,7 +101,10 @@ def test_large_table_multi_start_solves_the_best_subset_start_in_full(x64, monke
     fm.compiled_solver.cache_clear()
     objs = np.asarray(multi.start_objectives)
     assert objs.shape == (3,) and np.all(np.isfinite(objs))
-    assert multi.objective == objs.min() <= one.objective * (1 + 1e-12)
+    # Both stop by the default rtol = 1e-8 (a last step that changed the objective by less than
+    # 1e-8 of it), so equal minima agree to far better than that but not to the last bits; a
+    # worse local minimum here is 3 % higher (0.930 against 0.905).
+    assert multi.objective == objs.min() <= one.objective * (1 + 1e-10)
     assert any("subset" in note for note in multi.info)
     assert abs(float(multi.params["alpha"]) - 0.3) < 0.01
 

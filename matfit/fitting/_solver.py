@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..cache import persistent_jit
+from ..cache import LOOP_COMPILER_OPTIONS, loop_jit, persistent_jit
 from ..fast import supports_soa
 from .lm import column_groups, half_sq, widen
 from .methods import METHODS
@@ -120,7 +120,8 @@ def compiled_solver(family, channels, fixed_items, tied, method, loss, robust, s
     # traced once per machine, not per process (matfit.cache): a solver takes longer to trace
     # than its compiled program takes to load
     key = (family, channels, fixed_items, tied, method, loss, robust, scale, max_steps, rtol, atol, split)
-    return (par, jax.jit(run), persistent_jit(jax.jit(run_full), ("run_full",) + key),
+    # loop_jit: the solver loops run over the whole table (matfit.cache.LOOP_COMPILER_OPTIONS)
+    return (par, loop_jit(run), persistent_jit(jax.jit(run_full), ("run_full",) + key, LOOP_COMPILER_OPTIONS),
             persistent_jit(jax.jit(objective), ("objective",) + key))
 
 
@@ -131,4 +132,4 @@ def fixed_items(fixed):
 
 @functools.lru_cache(maxsize=16)
 def batched_run(run):
-    return jax.jit(jax.vmap(run))
+    return loop_jit(jax.vmap(run))

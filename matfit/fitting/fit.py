@@ -21,6 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..cache import loop_jit
 from ..errors import ParameterError
 from ..fast import supports_soa
 from ..parallel import device_count
@@ -256,7 +257,7 @@ def _batch_programs(run_full, par, shared):
     their Jacobian in ``z``."""
     d_ax = None if shared else 0
     to_z = jax.jit(jax.vmap(par.z_from_theta))
-    run = jax.jit(jax.vmap(run_full, in_axes=(0, (d_ax, d_ax, 0, 0))))
+    run = loop_jit(jax.vmap(run_full, in_axes=(0, (d_ax, d_ax, 0, 0))))
     post = jax.jit(jax.vmap(lambda z: (par.theta_vector(z), jnp.diag(jax.jacfwd(par.theta_vector)(z)))))
     return to_z, run, post
 
