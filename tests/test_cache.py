@@ -81,3 +81,38 @@ def test_persistent_jit_reads_the_exported_program(tmp_path, monkeypatch):
     assert jax.grad(lambda v: cache.persistent_jit(jax.jit(lambda u: 7 * u), ("test", 1))(v).sum())(x).tolist() == [7.0] * 4
     monkeypatch.setattr(cache, "_exported_dir", None)
     assert cache.persistent_jit(jax.jit(lambda v: 11 * v), ("test", 1))(x).tolist() == [0.0, 11.0, 22.0, 33.0]
+
+
+def _while_body_text(hlo):
+    """The text of the first while loop's body and every computation it calls, in compiled HLO."""
+    import re
+
+    comps = {c.split(" ", 1)[0].lstrip("%"): c for c in re.split(r"\n(?=\S)", hlo) if c.strip()}
+
+    def reach(name, seen):
+        if name in seen or name not in comps:
+            return ""
+        seen.add(name)
+        called = re.findall(r"(?:calls|to_apply|body|condition|branch_computations)=\{?%?([\w.\-]+)", comps[name])
+        return comps[name] + "".join(reach(c, seen) for c in called)
+
+    body = re.search(r"body=%?([\w.\-]+)", hlo).group(1)
+    return reach(body, set())
+
+
+def test_loop_jit_keeps_table_only_work_inside_the_loop():
+    """XLA hoists a loop body's loop-invariant work (here sqrt of the table) out of a while loop;
+    the solvers' programs (matfit.cache.loop_jit) are compiled without that pass, so the body
+    recomputes it in its own fused kernels instead of reading a hoisted array."""
+    import jax
+    import jax.numpy as jnp
+
+    from matfit.cache import loop_jit
+
+    def f(x):
+        return jax.lax.fori_loop(0, 5, lambda i, a: a + jnp.sum(jnp.sqrt(x) * i.astype(x.dtype)), jnp.zeros((), x.dtype))
+
+    x = jnp.arange(1.0, 1001.0)
+    assert "sqrt" not in _while_body_text(jax.jit(f).lower(x).compile().as_text())  # hoisted by default
+    assert "sqrt" in _while_body_text(loop_jit(f).lower(x).compile().as_text())
+    assert abs(float(loop_jit(f)(x)) - float(jax.jit(f)(x))) <= 1e-5 * float(jax.jit(f)(x))
