@@ -5,6 +5,8 @@ Checked against the (N, C) path they replace (same residuals, same normal equati
 numpy's X X^T, and against a one-parameter problem whose Gauss-Newton step is known in closed form.
 """
 
+from types import SimpleNamespace
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -178,6 +180,28 @@ def test_float32_fit_stops_at_its_rounding_floor(x64):
     F64 = float(out[jnp.float64][1])
     assert abs(float(F) - F64) <= 1e-5 * F64
     np.testing.assert_allclose(np.asarray(z), np.asarray(out[jnp.float64][0]), rtol=1e-3)
+
+
+@pytest.mark.parametrize("dt", [jnp.float32, jnp.float64])
+def test_rejected_step_below_the_resolution_of_z_stops(dt, x64):
+    """scipy's xtol test on a rejected step: after rejections (MINPACK's test no longer applies)
+    a trial step shorter than max(rtol, 4 eps) (max(rtol, 4 eps) + |z|) ends the loop, a longer
+    one does not."""
+    from matfit.fitting.lm import StepTermination
+
+    term = StepTermination(1e-8, 1e-10)
+    z = jnp.array([2.0, -1.0], dt)
+    tol = max(1e-8, 4 * float(jnp.finfo(dt).eps))
+    s = SimpleNamespace(z=z, F=jnp.asarray(10.0, dt), rejects=jnp.asarray(3))
+    F_new, pred, rho, g = jnp.asarray(10.5, dt), jnp.asarray(1.0, dt), jnp.asarray(-0.5, dt), jnp.ones(2, dt)
+
+    def stops(step):
+        delta = jnp.array([step, 0.0], dt)
+        return bool(term(s, delta, F_new, s.F, pred, rho, jnp.asarray(False), g, jnp.asarray(4)))
+
+    length = tol * (tol + float(jnp.linalg.norm(z)))
+    assert stops(0.5 * length)
+    assert not stops(4 * length)
 
 
 @pytest.mark.parametrize("dt, tol", [(jnp.float64, 1e-10), (jnp.float32, 2e-3)])

@@ -74,7 +74,9 @@ Stopping
     accepted or not, whose actual and predicted changes of the objective are both within
     ``max(rtol, 4 eps) * F + atol`` (MINPACK's ``ftol`` test, Moré 1978: the quadratic model has
     nothing left to gain; in float32 a converged fit's next trial steps are rejected for
-    rounding, and would otherwise run on to ``max_reject``); when the gradient's largest entry
+    rounding, and would otherwise run on to ``max_reject``); after a rejected trial step no longer
+    than ``t (t + |z|)``, ``t = max(rtol, 4 eps)`` (scipy's ``xtol`` test, which it applies while
+    its trust region shrinks: the damping has made the step too short to move ``z``); when the gradient's largest entry
     is at most ``atol``; or when no decrease is possible any more (``max_reject`` consecutive
     rejected steps: the objective is at its floating-point floor). Otherwise the loop stops
     after ``max_steps`` Jacobians.
@@ -811,7 +813,11 @@ class StepTermination(eqx.Module):
         # otherwise run up to max_reject). Not after rejections: a damping raised by them shrinks
         # the predicted change of any point.
         flat_f = (s.rejects == 0) & (jnp.abs(s.F - F_new) <= f_tol * s.F + self.atol) & (pred <= f_tol * s.F + self.atol)
-        return (accepted & (((small_f | small_z) & (rho > 0.25)) | small_g)) | flat_f | (rejects >= self.max_reject)
+        # scipy's xtol test on a rejected step too (its trust region shrinking below xtol): the
+        # damping has shrunk the step below what z resolves, so no later trial can move it.
+        tiny_step = ~accepted & (jnp.linalg.norm(delta) <= f_tol * (f_tol + jnp.linalg.norm(s.z)))
+        return ((accepted & (((small_f | small_z) & (rho > 0.25)) | small_g)) | flat_f | tiny_step
+                | (rejects >= self.max_reject))
 
 
 class LevenbergMarquardtFD(eqx.Module):
