@@ -134,8 +134,7 @@ def fit(table, model="plastic", method=DEFAULT_METHOD, loss="l2", robust=None, r
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
     values = np.asarray(post["values"])
     lower, upper = par.lower_upper()
-    sw = np.sqrt(np.asarray(arrays[3], float))
-    data_scale = float(np.sqrt(np.mean((sw * np.asarray(arrays[2], float)) ** 2)))
+    data_scale = float(_weighted_rms(arrays[2], arrays[3]))
     info = []
     if METHODS[method].residuals == "channels" and device_count() == 1 and not supports_soa(post["model"]):
         info.append(f"{method}: the {model!r} family's model has no channel-split kernel; solved on (N, C) residuals")
@@ -248,6 +247,11 @@ def _check_stack(where, wo, wi, values, weight, valid):
     if valid is not None and np.shape(valid) != (B, N):
         raise ParameterError(f"{where}: valid must be (B, N) = ({B}, {N}), found {np.shape(valid)}")
     return dirs[0], dirs[1], values
+
+
+#: ``sqrt(mean(w v^2))`` of a table's values and weights (the data's scale, for the diagnostics'
+#: exact-fit threshold), on the device where the arrays already are.
+_weighted_rms = jax.jit(lambda v, w: jnp.sqrt(jnp.mean(w * v * v)))
 
 
 @functools.lru_cache(maxsize=16)
