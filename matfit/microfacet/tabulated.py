@@ -41,6 +41,8 @@ References
 
 from __future__ import annotations
 
+import functools
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -239,8 +241,20 @@ def back_facing_area(theta, d, mu):
     (0.0, 0.5)
     """
     theta = np.asarray(theta, np.float64)
-    d = np.asarray(d, np.float64)
     mu = np.clip(np.asarray(mu, np.float64), 0.0, 1.0)
+    x, j, xq, weight = _back_facing_kernel(theta.tobytes(), mu.tobytes())
+    dm = _values_in_cells(x, np.asarray(d, np.float64), j, xq)
+    return np.sum(weight * np.maximum(dm, 0.0), axis=(1, 2))
+
+
+@functools.lru_cache(maxsize=8)
+def _back_facing_kernel(theta_bytes, mu_bytes):
+    """What :func:`back_facing_area` needs of the nodes and the cosines alone (an NDF extraction
+    calls it with the same ones at every iteration): ``x = sin^2`` of the nodes, the cell ``j``
+    and ``sin^2`` of every Gauss-Legendre point (m, n-1, order), and the weight of ``D`` there
+    (the interval length, the quadrature weight and the projection kernel times ``sin``)."""
+    theta = np.frombuffer(theta_bytes, np.float64)
+    mu = np.frombuffer(mu_bytes, np.float64)
     x = np.sin(theta) ** 2
     onset = np.arcsin(mu)[:, None]  # back-facing normals exist for theta_m > pi/2 - theta_v
     lo = np.maximum(theta[None, :-1], onset)
@@ -250,13 +264,15 @@ def back_facing_area(theta, d, mu):
     tm = lo[..., None] + (hi - lo)[..., None] * g  # (m, n-1, order)
     sm, cm = np.sin(tm), np.cos(tm)
     j = np.broadcast_to(np.arange(len(theta) - 1)[None, :, None], tm.shape)
-    dm = _values_in_cells(x, d, j, sm * sm)
     a = np.sqrt(np.maximum(1 - mu * mu, 0.0))[:, None, None] * sm
     b = mu[:, None, None] * cm
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = np.clip(np.where(a > 0, b / a, 1.0), -1.0, 1.0)
     kern = np.where(a > b, 2 * (np.sqrt(np.maximum(a * a - b * b, 0.0)) - b * np.arccos(ratio)), 0.0)
-    return np.sum((hi - lo)[..., None] * w * np.maximum(dm, 0.0) * kern * sm, axis=(1, 2))
+    out = (x, j, sm * sm, (hi - lo)[..., None] * w * kern * sm)
+    for arr in out:  # shared by every later call
+        arr.flags.writeable = False
+    return out
 
 
 class TabulatedNDF(AbstractDistribution):
