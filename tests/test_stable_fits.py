@@ -112,6 +112,20 @@ def test_outliers_are_flagged_by_least_squares():
     assert not r.ok and any(w.startswith("outliers") for w in r.warnings), r.summary()
 
 
+@pytest.mark.parametrize("n", [8, 9, 1000, 1001])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_outlier_test_median_is_numpys(n, dtype):
+    """The diagnostics' median (one partitioned copy) is np.median's, odd and even sizes, with ties,
+    and leaves its argument as it was."""
+    from matfit.fitting.diagnostics import _median_of_copy
+
+    a = np.random.default_rng(n).standard_normal(n).astype(dtype)
+    a[: n // 4] = a[-1]  # ties
+    before = a.copy()
+    assert _median_of_copy(a) == np.median(a)
+    np.testing.assert_array_equal(a, before)
+
+
 @pytest.mark.parametrize("robust", ["huber", "cauchy"])
 def test_outliers_robust_loss_recovers(robust):
     r = fit(_with_outliers(), model="lambert", robust=robust, starts=1)
