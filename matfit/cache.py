@@ -22,6 +22,10 @@ largest programs of a fit (:func:`persistent_jit`) are also written out as seria
 (:mod:`jax.export`, a flatbuffer, never a pickle) under ``exported/`` of the same folder, keyed on
 the solver's configuration, the argument shapes and dtypes, the JAX version and a hash of
 matfit's own source; a later process reads the program back instead of tracing it.
+
+The solvers' programs loop over a whole table; :func:`loop_jit` compiles them with
+:data:`LOOP_COMPILER_OPTIONS` (no while-loop-invariant code motion: see its comment), and
+:func:`persistent_jit` compiles what it reads back with the same options.
 """
 
 from __future__ import annotations
