@@ -124,6 +124,8 @@ def test_outlier_test_median_is_numpys(n, dtype):
     before = a.copy()
     assert _median_of_copy(a) == np.median(a)
     np.testing.assert_array_equal(a, before)
+    a[n // 2] = np.nan
+    assert np.isnan(_median_of_copy(a)) and np.isnan(np.median(a))
 
 
 @pytest.mark.parametrize("robust", ["huber", "cauchy"])

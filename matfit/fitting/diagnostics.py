@@ -101,9 +101,11 @@ def identifiability(Jt, labels, lower, upper, gram=None):
 
 
 def _median_of_copy(a):
-    """``np.median`` of a 1-D array of finite values, partitioning one copy of it in place (a full
-    MERL table's 3.3 million residuals: ``np.median``'s own copies and mean cost more than the
-    partition)."""
+    """``np.median`` of a 1-D array (NaN if it holds one), partitioning one copy of it in place (a
+    full MERL table's 3.3 million residuals: ``np.median``'s own copies and mean cost more than
+    the partition)."""
+    if np.isnan(a).any():
+        return np.float64(np.nan)
     a = a.copy()
     k = a.size // 2
     if a.size % 2:

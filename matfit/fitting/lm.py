@@ -76,10 +76,10 @@ Stopping
     nothing left to gain; in float32 a converged fit's next trial steps are rejected for
     rounding, and would otherwise run on to ``max_reject``); after a rejected trial step no longer
     than ``t (t + |z|)``, ``t = max(rtol, 4 eps)`` (scipy's ``xtol`` test, which it applies while
-    its trust region shrinks: the damping has made the step too short to move ``z``); when the gradient's largest entry
-    is at most ``atol``; or when no decrease is possible any more (``max_reject`` consecutive
-    rejected steps: the objective is at its floating-point floor). Otherwise the loop stops
-    after ``max_steps`` Jacobians.
+    its trust region shrinks: the damping has made the step too short to move ``z``); when the
+    gradient's largest entry is at most ``atol``; or when no decrease is possible any more
+    (``max_reject`` consecutive rejected steps: the objective is at its floating-point floor).
+    Otherwise the loop stops after ``max_steps`` Jacobians.
 
 References
 ----------
