@@ -804,8 +804,9 @@ class StepTermination(eqx.Module):
         f_tol = max(self.rtol, 4 * float(jnp.finfo(s.z.dtype).eps))
         # Either test ends the loop after a step the quadratic model predicted well (scipy's
         # ftol/xtol rule); the objective's test cannot ask for less than the dtype resolves.
+        step, size = jnp.linalg.norm(delta), jnp.linalg.norm(s.z)
         small_f = (s.F - F_c) <= f_tol * s.F + self.atol
-        small_z = jnp.linalg.norm(delta) <= self.rtol * (self.rtol + jnp.linalg.norm(s.z))
+        small_z = step <= self.rtol * (self.rtol + size)
         small_g = jnp.max(jnp.abs(g)) <= self.atol
         # MINPACK's ftol test (More 1978) on the first trial step from a point, accepted or not:
         # the actual and the predicted change both within the tolerance, so the quadratic model
@@ -815,7 +816,7 @@ class StepTermination(eqx.Module):
         flat_f = (s.rejects == 0) & (jnp.abs(s.F - F_new) <= f_tol * s.F + self.atol) & (pred <= f_tol * s.F + self.atol)
         # scipy's xtol test on a rejected step too (its trust region shrinking below xtol): the
         # damping has shrunk the step below what z resolves, so no later trial can move it.
-        tiny_step = ~accepted & (jnp.linalg.norm(delta) <= f_tol * (f_tol + jnp.linalg.norm(s.z)))
+        tiny_step = ~accepted & (step <= f_tol * (f_tol + size))
         return ((accepted & (((small_f | small_z) & (rho > 0.25)) | small_g)) | flat_f | tiny_step
                 | (rejects >= self.max_reject))
 
