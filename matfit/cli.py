@@ -126,7 +126,8 @@ def _cmd_fit(args):
                  fixed=_parse_fixed(args.fixed), starts=args.starts, max_steps=args.max_steps, seed=args.seed,
                  posterior_steps=args.mcmc_steps if args.method == "mcmc" else 0,
                  truth=truth, report=args.report, report_table=full,
-                 title=f"{args.model} fit of {Path(args.table).name}", save_model=args.save_model, source=args.table,
+                 title=f"{args.model or 'chosen'} fit of {Path(args.table).name}", save_model=args.save_model,
+                 source=args.table,
                  export=[tuple(args.export)] if args.export else ())
     return 0
 
@@ -290,12 +291,14 @@ def build_parser():
     families = sorted(FAMILIES)
     fi = sub.add_parser("fit", help="fit a model family to a table or measured file")
     fi.add_argument("table", help="table or measured file (.npz .csv .binary .bsdf .alta)")
-    fi.add_argument("--model", required=True, choices=families, metavar="NAME",
-                    help=f"model family: {', '.join(families)}")
+    fi.add_argument("--model", default=None, choices=families, metavar="NAME",
+                    help=f"model family: {', '.join(families)} (default: the candidate family whose render looks "
+                         "most like the measurement, matfit.fitting.choose_family)")
     fi.add_argument("--method", default=DEFAULT_METHOD, choices=list(METHODS) + ["mcmc"],
                     help=f"solver (default {DEFAULT_METHOD}; see matfit.fitting.methods); "
                          f"mcmc: {DEFAULT_METHOD}, then posterior sampling")
-    fi.add_argument("--loss", default="l2", choices=list(LOSSES), help="loss (default l2)")
+    fi.add_argument("--loss", default=None, choices=list(LOSSES),
+                    help="loss (default l2 for a named family, e2 when the family is chosen)")
     fi.add_argument("--fixed", nargs="+", action="extend", default=[], metavar="NAME=VALUE",
                     help="hold parameters fixed, e.g. --fixed eta=1.5 albedo=0.2,0.3,0.4")
     fi.add_argument("--subsample", type=_positive_int, default=None, metavar="N",

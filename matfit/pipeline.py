@@ -71,7 +71,7 @@ def _fixed_line(result):
     return "  fixed: " + ", ".join(f"{k}={np.asarray(v).round(6).tolist()}" for k, v in fixed.items())
 
 
-def run_pipeline(table, model, *, method=None, loss="l2", fixed=None, tied=(), starts=4, max_steps=256, seed=0,
+def run_pipeline(table, model=None, *, method=None, loss=None, fixed=None, tied=(), starts=4, max_steps=256, seed=0,
                  posterior_steps=0, truth=None, report=None, report_table=None, title=None, save_model=None,
                  source=None, export=(), compare=(), holdout=0.2, compare_json=None,
                  log: Optional[Callable] = print) -> PipelineResult:
@@ -81,12 +81,14 @@ def run_pipeline(table, model, *, method=None, loss="l2", fixed=None, tied=(), s
     ----------
     table : matfit.Table
         The measurements.
-    model : str
-        The family (a key of :data:`matfit.fitting.FAMILIES`).
+    model : str, optional
+        The family (a key of :data:`matfit.fitting.FAMILIES`); None chooses it by appearance
+        (:func:`matfit.fitting.choose_family`, against ``truth``'s model when given, else the
+        measured file the table came from).
     method : str, optional
         A method of :data:`matfit.fitting.METHODS` (default: :data:`~matfit.fitting.DEFAULT_METHOD`).
-    loss : str, default "l2"
-        As for :func:`matfit.fitting.fit`.
+    loss : str, optional
+        As for :func:`matfit.fitting.fit` (``"l2"`` for a named family, ``"e2"`` when chosen).
     fixed : dict, optional
         Parameters held at given values, as for :func:`matfit.fitting.fit` (also for the
         posterior).
@@ -156,10 +158,31 @@ def run_pipeline(table, model, *, method=None, loss="l2", fixed=None, tied=(), s
         raise ParameterError(f"run_pipeline: table must be a matfit.Table, got {type(table).__name__}")
     say = log if log is not None else (lambda *a, **k: None)
     method = DEFAULT_METHOD if method is None else method
-    result = robust_fit(table, model, method=method, loss=loss, fixed=fixed, tied=tied, starts=starts,
-                        max_steps=max_steps, seed=seed)
+    if model is None:
+        from .fitting import choose_family
+
+        if fixed or tied:
+            raise ParameterError("run_pipeline: fixed and tied name parameters of one family: name the family "
+                                 "(model=..., or --model NAME)")
+        ref = truth.get("model") if isinstance(truth, dict) and truth.get("model") is not None else "auto"
+        say("choosing the family: fitting the candidates the data call for and rendering each beside the "
+            + ("truth" if ref != "auto" else "measurement"))
+        result, choice = choose_family(table, reference=ref, loss=loss, method=method, starts=starts,
+                                       max_steps=max_steps, seed=seed, log=say)
+        model, loss = result.family, result.loss
+        say(choice.summary().splitlines()[0])
+        if choice.missing:
+            say("  the data show effects no family here carries: " + "; ".join(choice.missing))
+        if truth is not None and truth.get("family") not in (None, model):
+            truth = dict(truth, params=None)  # the truth's parameters belong to another family
+    else:
+        loss = "l2" if loss is None else loss
+        result = robust_fit(table, model, method=method, loss=loss, fixed=fixed, tied=tied, starts=starts,
+                            max_steps=max_steps, seed=seed)
     out = PipelineResult(result=result, truth=truth)
     say(result.summary().splitlines()[0])
+    if getattr(result, "appearance", None) is not None:
+        say("appearance: " + result.appearance.summary())
     if posterior_steps:
         from .fitting import sample_posterior
 

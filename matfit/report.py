@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from .io import dirs_to_half_diff
+from .models import measured_model
 
 __all__ = ["write_report", "colour_difference", "in_plane_slices", "param_table", "truth_for_label"]
 
@@ -650,15 +651,17 @@ def write_report(result, table, out_dir, posterior=None, truth=None, history=Non
     previews = None
     if preview:
         ref = (t_model, "truth") if t_model is not None else (
-            (_measured_model(table) if isinstance(measured, str) and measured == "auto" else measured), "measured")
-        previews = _previews(out, result.model, ref, files)
+            (measured_model(table) if isinstance(measured, str) and measured == "auto" else measured), "measured")
+        previews = _previews(out, result, ref, files)
 
     summary = {
         "title": title or f"{result.family} fit",
         "model": describe_model(result.model), "preview": previews,
         "family": result.family, "method": result.method, "loss": result.loss,
         "converged": bool(result.converged), "steps": int(result.steps), "wall_time_s": float(result.wall_time),
-        "warnings": list(getattr(result, "warnings", [])),
+        "warnings": list(getattr(result, "warnings", [])) + ([previews["warning"]] if previews and previews.get(
+            "warning") and previews["warning"] not in getattr(result, "warnings", []) else []),
+        "choice": result.choice.to_dict() if getattr(result, "choice", None) is not None else None,
         "start_objectives": np.asarray(result.start_objectives, float).tolist(),
         "table": {"n": len(table), "n_valid": int(table.n_valid), "channels": table.channels if isinstance(table.channels, str)
                   else list(table.channels), "source": table.provenance.get("source") or table.provenance.get("scene")},
@@ -685,44 +688,42 @@ def _history_json(history):
     return [np.asarray(history, float).tolist()]
 
 
-#: Size and samples per pixel of the report's preview spheres.
-PREVIEW_SIZE, PREVIEW_SPP = 128, 32
+def _previews(out, result, reference, files):
+    """Render ``preview.png``: per judging lighting, reference | fitted | FLIP map (noise-free,
+    :mod:`matfit.appearance`), or the fitted spheres alone; ``reference`` is ``(model or None, name)``."""
+    from .appearance import JUDGE_LIGHTS, SIZE, appearance_difference, display, lighting, render_lit
+    from .render import save_png
 
-
-def _measured_model(table):
-    """The measured table as a model where its provenance names an RGL or MERL file that exists
-    (:class:`~matfit.models.MeasuredRGL`, :class:`~matfit.models.MeasuredMERL`); else None."""
-    from .models import MeasuredMERL, MeasuredRGL
-
-    prov = table.provenance or {}
-    cls = {"rgl-tensor": MeasuredRGL, "merl": MeasuredMERL}.get(prov.get("format"))
-    src = prov.get("source")
-    if cls is None or not isinstance(src, str) or not Path(src).is_file():
-        return None
-    return cls.from_file(src)
-
-
-def _previews(out, model, reference, files):
-    """Render ``preview.png`` (reference | fitted | 4 x |difference|, or the fitted sphere alone);
-    ``reference`` is ``(model or None, its name)``."""
-    from .render import image_ciede2000, render_sphere, save_png
-
+    model = result.model
     if model.channels not in (1, 3):
         return {"skipped": f"{model.channels} channels (previews need 1 or 3)"}
-    fitted = render_sphere(model, "sky", size=PREVIEW_SIZE, spp=PREVIEW_SPP)
-    info = {"environment": "sky", "size": PREVIEW_SIZE, "spp": PREVIEW_SPP}
     reference, ref_name = reference
+    info = {"renderer": "quadrature over each lighting (noise-free, matfit.appearance)", "size": SIZE,
+            "lights": {k: lighting(k).description for k in JUDGE_LIGHTS}}
     if reference is not None and getattr(reference, "channels", 0) in (1, 3):
-        ref = render_sphere(reference, "sky", size=PREVIEW_SIZE, spp=PREVIEW_SPP)
-        info["ciede2000_mean"] = image_ciede2000(ref, fitted)
-        info["panels"] = [ref_name, "fitted", "4 x |difference|"]
-        img = np.concatenate([ref, fitted, 4 * np.abs(ref - fitted)], axis=1)
+        diff = result.appearance if getattr(result, "appearance", None) is not None else (
+            appearance_difference(model, reference))
+        import matplotlib
+
+        magma = matplotlib.colormaps["magma"]
+        rows = [np.concatenate([d.reference, d.fitted, _linear(magma(np.clip(d.flip, 0, 1))[..., :3])], axis=1)
+                for d in diff.lights.values()]
+        info.update(diff.to_dict(), panels=[ref_name, "fitted", "FLIP"])
+        w = diff.warning(ref_name)
+        if w:
+            info["warning"] = w
+        img = np.concatenate(rows, axis=0)
     else:
         info["panels"] = ["fitted"]
-        img = fitted
-    save_png(out / "preview.png", img)
+        img = np.concatenate([display(render_lit(model, k)[0], lighting(k).exposure) for k in JUDGE_LIGHTS], axis=0)
+    save_png(out / "preview.png", img)  # the images are already exposed for display
     files["preview"] = "preview.png"
     return info
+
+
+def _linear(srgb):
+    """sRGB codes in [0, 1] to linear (so that save_png shows the colour map as it is)."""
+    return np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
 
 
 def _write_markdown(path, s, table, result, has_truth, has_post, files):
@@ -731,7 +732,7 @@ def _write_markdown(path, s, table, result, has_truth, has_post, files):
              f"{s['steps']} steps, converged = {s['converged']}, {s['wall_time_s']:.2f} s.")
     if s.get("warnings"):
         L += ["", "**Diagnostics** (`matfit.fitting.diagnostics`):", ""] + [f"- {w}" for w in s["warnings"]]
-    L += ["", "```", table.summary(), "```", "", "## Parameters", ""]
+    L += ["", "```", table.summary(), "```", ""] + _choice_markdown(s.get("choice")) + ["## Parameters", ""]
     head = ["parameter", "value", "std. error"]
     if has_post:
         head += ["posterior mean", "posterior std", "95 % interval"]
@@ -780,15 +781,55 @@ def _write_markdown(path, s, table, result, has_truth, has_post, files):
     L += ["![loss](loss.png)", ""]
     if "corner" in files:
         L += ["Posterior:", "", "![corner](corner.png)", ""]
-    pv = s.get("preview")
-    if pv and "preview" in files:
-        what = " | ".join(pv["panels"])
-        cd2 = f"; mean CIEDE2000 of the two spheres {pv['ciede2000_mean']:.2f}" if "ciede2000_mean" in pv else (
-            "; no reference to render beside it (neither a truth nor a measured file that matfit reads as a model)")
-        L += [f"Preview under the built-in sky ({pv['size']} px, {pv['spp']} spp, `matfit.render`): {what}{cd2}.", "",
-              "![preview](preview.png)", ""]
+    L += _appearance_markdown(s.get("preview"), files)
     L += ["Numbers: `report.json`. The fitted model: `model.json` (`matfit export model.json --to gltf -o m.gltf`).", ""]
     Path(path).write_text("\n".join(L))
+
+
+def _appearance_markdown(pv, files):
+    if not pv or "preview" not in files:
+        return []
+    what = " | ".join(pv["panels"])
+    L = ["## Appearance", "", f"Spheres rendered noise-free ({pv['renderer']}, {pv['size']} px), one row per lighting: "
+         f"{what}. Lightings: " + "; ".join(f"`{k}`, {v}" for k, v in pv["lights"].items()) + ".", ""]
+    if "looks_alike" in pv:
+        from .appearance import CIEDE2000_LINE, FLIP_LINE
+
+        L += ["| lighting | mean FLIP | mean CIEDE2000 | mean ΔE_ITP | FLIP near the mirror / at grazing / elsewhere |",
+              "| --- | --- | --- | --- | --- |"]
+        for k in pv["lights"]:
+            m, r = pv[k]["means"], pv[k]["regions"]
+            L.append(f"| {k} | {m['flip']:.3f} | {m['ciede2000']:.2f} | {m['itp']:.2f} | "
+                     f"{r['near_mirror']:.3f} / {r['grazing']:.3f} / {r['elsewhere']:.3f} |")
+        L += ["", (f"The fit looks like its reference: under every lighting mean FLIP <= {FLIP_LINE} and mean CIEDE2000 "
+                   f"<= {CIEDE2000_LINE}." if pv["looks_alike"] else f"**{pv.get('warning', '')}**"), ""]
+    else:
+        L += ["No reference to render beside the fit (neither a truth nor a measured file that matfit reads as a "
+              "model).", ""]
+    return L + ["![preview](preview.png)", ""]
+
+
+def _choice_markdown(c):
+    if not c:
+        return []
+    L = ["## Why this family", "", f"Chosen by {c['judged_by']}: **{c['chosen']}**, {c['reason']}.", "",
+         "| family | parameters | why a candidate | score | " + (
+             "worst mean FLIP | worst mean CIEDE2000 |" if c["judged_by"] == "appearance" else "held-out RMSE |"),
+         "| --- | --- | --- | --- | --- |" + (" --- |" if c["judged_by"] == "appearance" else "")]
+    for r in c["candidates"]:
+        if "error" in r:
+            L.append(f"| {r['family']} | {r['p']} | {r['why']} | failed: {r['error']} | |")
+        elif "score" in r:
+            a = r["appearance"]
+            L.append(f"| {r['family']}{' (chosen)' if r['family'] == c['chosen'] else ''} | {r['p']} | {r['why']} | "
+                     f"{r['score']:.2f} | {max(v['flip'] for v in a.values()):.3f} | "
+                     f"{max(v['ciede2000'] for v in a.values()):.2f} |")
+        else:
+            L.append(f"| {r['family']} | {r['p']} | {r['why']} | {r['holdout_rmse']:.4g} | |")
+    L.append("")
+    if c["missing"]:
+        L += ["The data show effects no family here carries: " + "; ".join(c["missing"]) + ".", ""]
+    return L
 
 
 def param_table(result, truth_params=None, posterior=None):

@@ -14,6 +14,7 @@ def _reference(pred, y, w, c, loss):
     c = c[:, None]
     r = {"l2": pred - y,
          "e2": np.log1p(np.maximum(pred * c, -0.999)) - np.log1p(np.maximum(y * c, -0.999)),
+         "cbrt": np.cbrt(np.maximum(pred * c, 0) + 1e-6) - np.cbrt(np.maximum(y * c, 0) + 1e-6),
          "cosine": (pred - y) * c,
          "relative": (pred - y) / (np.abs(y) + 1e-3)}[loss]
     return np.where(w > 0, sw * np.where(w > 0, r, 0), 0)

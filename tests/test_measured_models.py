@@ -470,22 +470,26 @@ def test_bad_input_raises_clear_errors(tmp_path):
 
 def test_report_of_a_measured_file_renders_the_measurement_beside_the_fit(tmp_path):
     """write_report reads the measured file the table came from as a model and renders it as the
-    preview's reference: measured | fitted | difference, with the two spheres' CIEDE2000."""
+    preview's reference, noise-free under each judging lighting: measured | fitted | FLIP, with the
+    image means of matfit.appearance."""
     import json
 
+    from matfit.appearance import appearance_difference
     from matfit.fitting import fit
     from matfit.io import load
-    from matfit.render import image_ciede2000
-    from matfit.report import PREVIEW_SIZE, PREVIEW_SPP, write_report
+    from matfit.report import write_report
 
     path = rgl_path("paper_white")
     table = load(path)
     r = fit(table, model="lambert", starts=1)
     s = write_report(r, table, tmp_path / "a")
-    assert s["preview"]["panels"] == ["measured", "fitted", "4 x |difference|"]
-    a = render_sphere(MeasuredRGL.from_file(path), "sky", size=PREVIEW_SIZE, spp=PREVIEW_SPP)
-    b = render_sphere(r.model, "sky", size=PREVIEW_SIZE, spp=PREVIEW_SPP)
-    assert s["preview"]["ciede2000_mean"] == pytest.approx(image_ciede2000(a, b), rel=1e-6)
+    assert s["preview"]["panels"] == ["measured", "fitted", "FLIP"]
+    d = appearance_difference(r.model, MeasuredRGL.from_file(path))
+    for k in ("sky", "studio"):
+        assert s["preview"][k]["means"]["ciede2000"] == pytest.approx(d.lights[k].means["ciede2000"], rel=1e-6)
+        assert s["preview"][k]["means"]["flip"] == pytest.approx(d.lights[k].means["flip"], rel=1e-5)
+    # a Lambertian paper does not look like the paper: the poor-fit warning says so and where
+    assert not s["preview"]["looks_alike"] and any(w.startswith("poor fit in appearance") for w in s["warnings"])
     assert json.loads((tmp_path / "a" / "report.json").read_text())["preview"]["panels"][0] == "measured"
     # without the measured model (or when the table names no readable file) the fitted sphere alone
     assert write_report(r, table, tmp_path / "b", measured=None)["preview"]["panels"] == ["fitted"]

@@ -9,7 +9,7 @@ from matfit.errors import DataFormatError, ParameterError
 from matfit.models import (Blend, CoatedConductor, GltfPBR, Lambert, Plastic, RoughConductor, RoughDielectric,
                            SmoothDielectric)
 from matfit.render import image_ciede2000, render_sphere, sky_map
-from matfit.render._sphere import _frames
+from matfit.render import sphere_frames as _frames
 
 LOSSLESS_METAL = RoughConductor(0.4, 1e-3, 1e3)  # F = 1 to 1e-5: only masking loses energy
 

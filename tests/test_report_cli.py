@@ -135,9 +135,9 @@ def test_report_contents(cmp_lambertian, lambertian, tmp_path):
     for needle in ("| albedo[0] |", "![lobes](lobes.png)", "![residuals](residuals.png)", "![corner](corner.png)",
                    "CIEDE2000", "truth", "![preview](preview.png)"):
         assert needle in md, needle
-    # preview: truth | fitted | difference, three 128-px spheres side by side; the fit looks like the truth
+    # preview: truth | fitted | FLIP under each lighting; the fit looks like the truth
     assert (out / "preview.png").read_bytes()[:8] == PNG_MAGIC
-    assert j["preview"]["panels"][:2] == ["truth", "fitted"] and j["preview"]["ciede2000_mean"] < 2.0
+    assert j["preview"]["panels"][:2] == ["truth", "fitted"] and j["preview"]["looks_alike"]
     from matfit.export import load_model
 
     assert type(load_model(out / "model.json")).__name__ == "Lambert"
@@ -215,7 +215,7 @@ def test_cli_compare(lambertian, cmp_lambertian, tmp_path, capsys):
     (["fit", "{dir}/ok.npz", "--model", "lambert", "--subsample", "1"], "usable residuals"),
     (["compare", "{dir}/ok.npz", "--models", "lambert,nosuch"], "model must be one of"),
     (["compare", "{dir}/ok.npz", "--holdout", "1.5"], "fraction"),
-    (["fit", "{dir}/ok.npz"], "--model"),
+    (["fit", "{dir}/ok.npz", "--fixed", "albedo=0.5"], "--model"),
     (["export", "{dir}/missing.json", "--to", "gltf", "-o", "{dir}/x.gltf"], "no such file"),
     (["export", "{dir}/ok.npz", "--to", "gltf", "-o", "{dir}/x.gltf"], "not a JSON document"),
     (["export", "{dir}/m.json", "--to", "blender", "-o", "{dir}/x"], "invalid choice"),

@@ -20,3 +20,6 @@ from .select import ModelComparison, compare_models, recommend, robust_fit  # no
 from ._history import loss_history  # noqa: E402
 
 __all__ += ["ModelComparison", "compare_models", "recommend", "robust_fit", "loss_history"]
+from ._choose import (CHOICE_LOSS, Choice, appearance_cues, candidates_for, choose_family)  # noqa: E402
+
+__all__ += ["CHOICE_LOSS", "Choice", "appearance_cues", "candidates_for", "choose_family"]

@@ -74,6 +74,10 @@ class FitResult:
         Notes on how the fit was computed, e.g. that a family has no channel-split kernel and
         ``lm_fd`` solved it on ``(N, C)`` residuals, or that a large table's starts were compared
         on its subset; not warnings.
+    choice : matfit.fitting.Choice or None
+        How the family was chosen, when none was named (:func:`~matfit.fitting.choose_family`).
+    appearance : matfit.appearance.AppearanceDiff or None
+        The fit's image differences from the measurement, when it was judged by them.
 
     Examples
     --------
@@ -107,6 +111,8 @@ class FitResult:
     z: np.ndarray = field(repr=False, default=None)
     warnings: list = field(default_factory=list)
     info: list = field(default_factory=list)
+    choice: object = field(repr=False, default=None)
+    appearance: object = field(repr=False, default=None)
 
     @property
     def ok(self) -> bool:

@@ -43,16 +43,18 @@ __all__ = ["fit", "fit_batch", "fit_arrays", "FitResult", "FitError", "BatchFit"
            "guesses_from_arrays", "fit_starts", "memory_estimate", "SCREEN_PER_START"]
 
 
-def fit(table, model="plastic", method=DEFAULT_METHOD, loss="l2", robust=None, robust_scale=1.0, fixed=None, tied=(),
+def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust_scale=1.0, fixed=None, tied=(),
         starts=4, init=None, max_steps=256, rtol=1e-8, atol=1e-10, seed=0, dtype=None) -> FitResult:
     """Fit a model family to a table by nonlinear least squares.
 
     Parameters
     ----------
     table : matfit.Table
-    model : str
-        Family name: ``"lambert"``, ``"conductor"``, ``"conductor_beckmann"``, ``"dielectric"``,
-        ``"plastic"``, ``"car_paint"`` (see :data:`matfit.fitting.FAMILIES`).
+    model : str, optional
+        Family name: ``"lambert"``, ``"conductor"``, ``"plastic"``, ``"lobes2"``, ... (see
+        :data:`matfit.fitting.FAMILIES`). None: the family whose render looks most like the
+        measurement, among candidates the data call for (:func:`~matfit.fitting.choose_family`;
+        the result's ``choice`` says why).
     method : str
         A method of :data:`matfit.fitting.methods.METHODS`. Default ``"lm_fd"``:
         Levenberg-Marquardt on the normal equations with a grouped finite-difference Jacobian
@@ -60,6 +62,8 @@ def fit(table, model="plastic", method=DEFAULT_METHOD, loss="l2", robust=None, r
         ``"lm"``, ``"gn"``, ``"dogleg"``, ``"bfgs"`` (optimistix), ``"lbfgs"``, ``"jaxopt_lm"``
         (jaxopt).
     loss, robust, robust_scale : see :mod:`matfit.fitting.losses`.
+        ``loss`` defaults to ``"l2"`` for a named family, to
+        :data:`~matfit.fitting.CHOICE_LOSS` when the family is chosen.
     fixed : dict, optional
         Parameters held at given values.  tied : per-channel parameters shared by all channels.
     starts : int
@@ -90,6 +94,14 @@ def fit(table, model="plastic", method=DEFAULT_METHOD, loss="l2", robust=None, r
     t0 = time.perf_counter()
     if not isinstance(table, Table):
         raise ParameterError(f"fit: table must be a matfit.Table, got {type(table).__name__}")
+    if model is None:
+        if fixed or tied or init is not None:
+            raise ParameterError("fit: fixed, tied and init name parameters of one family: name the family (model=...)")
+        from ._choose import choose_family
+
+        return choose_family(table, loss=loss, method=method, robust=robust, robust_scale=robust_scale, starts=starts,
+                             max_steps=max_steps, rtol=rtol, atol=atol, seed=seed, dtype=dtype)[0]
+    loss = "l2" if loss is None else loss
     get_method(method, "fit", model, loss)
     check_loss(loss, robust)
     check_solver_options("fit", starts=starts, max_steps=max_steps, rtol=rtol, atol=atol, robust_scale=robust_scale,

@@ -7,6 +7,9 @@ For predictions :math:`f` and measurements :math:`y` at the table's directions, 
 ``"l2"``       :math:`r = \sqrt{w}\,(f - y)` (weighted least squares on values)
 ``"e2"``       :math:`r = \sqrt{w}\,(\log(1 + f\cos\theta_i) - \log(1 + y\cos\theta_i))`
                (Löw et al. 2012, the E2 metric)
+``"cbrt"``     :math:`r = \sqrt{w}\,(\sqrt[3]{f\cos\theta_i + \delta} - \sqrt[3]{y\cos\theta_i + \delta})`
+               (Fores et al. 2012, the cube-root metric; :math:`\delta` = :data:`CBRT_DELTA`
+               keeps the gradient finite at zero, negative values clipped to 0)
 ``"cosine"``   :math:`r = \sqrt{w}\,(f - y)\cos\theta_i` (Ngan et al. 2005, cosine-weighted)
 ``"relative"`` :math:`r = \sqrt{w}\,(f - y)/(|y| + \epsilon)`
 =============  =======================================================================
@@ -22,6 +25,8 @@ References
 ----------
 - J. Löw, J. Kronander, A. Ynnerman, J. Unger, "BRDF Models for Accurate and Efficient
   Rendering of Glossy Surfaces", ACM ToG 31(1), 2012.
+- A. Fores, J. Ferwerda, J. Gu, "Toward a Perceptually Based Metric for BRDF Modeling", Color
+  and Imaging Conference 2012.
 - A. Ngan, F. Durand, W. Matusik, "Experimental Analysis of BRDF Models", EGSR 2005.
 - P. J. Huber, "Robust Estimation of a Location Parameter", Ann. Math. Stat. 35(1), 1964.
 """
@@ -32,14 +37,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["LOSSES", "ROBUST", "REL_EPS", "check_loss", "residuals", "prepare_targets", "residuals_from_targets"]
+__all__ = ["LOSSES", "ROBUST", "REL_EPS", "CBRT_DELTA", "check_loss", "residuals", "prepare_targets", "residuals_from_targets"]
 
 from .._math import safe_sqrt
 from ..errors import ParameterError
 
-LOSSES = ("l2", "e2", "cosine", "relative")
+LOSSES = ("l2", "e2", "cbrt", "cosine", "relative")
 ROBUST = (None, "huber", "cauchy")
 REL_EPS = 1e-3
+#: Offset of the cube-root loss: its slope at zero is (1/3) CBRT_DELTA^(-2/3), about 3e3.
+CBRT_DELTA = 1e-6
 
 
 def check_loss(loss, robust) -> None:
@@ -66,7 +73,7 @@ def check_loss(loss, robust) -> None:
     ...     check_loss("l1", None)
     ... except ParameterError as e:
     ...     print(e)
-    loss must be one of ['l2', 'e2', 'cosine', 'relative'], got 'l1'
+    loss must be one of ['l2', 'e2', 'cbrt', 'cosine', 'relative'], got 'l1'
     """
     if loss not in LOSSES:
         raise ParameterError(f"loss must be one of {list(LOSSES)}, got {loss!r}")
@@ -91,7 +98,7 @@ def residuals(pred, values, weight, cos_i, loss="l2", robust=None, scale=1.0):
         (see :meth:`matfit.Table.effective_weight`).
     cos_i : array_like (N,)
         Cosine of the incident zenith angle of each row.
-    loss : {"l2", "e2", "cosine", "relative"}, default "l2"
+    loss : {"l2", "e2", "cbrt", "cosine", "relative"}, default "l2"
         The loss (see the module docstring).
     robust : {None, "huber", "cauchy"}, default None
         The robust variant.
@@ -138,6 +145,8 @@ def _transform(x, cos_i, loss):
     """The map applied to predictions and measurements alike before they are differenced."""
     if loss == "e2":
         return jnp.log1p(jnp.maximum(x * cos_i[..., None], -0.999))
+    if loss == "cbrt":
+        return jnp.cbrt(jnp.maximum(x * cos_i[..., None], 0) + CBRT_DELTA)
     return x
 
 
@@ -145,7 +154,8 @@ def prepare_targets(values, weight, cos_i, loss="l2"):
     """The data's part of :func:`residuals`, computed once per table.
 
     ``r = factor * (T(pred) - target)`` (0 where ``factor`` is 0), with ``T`` the loss's
-    transform (``log(1 + f cos_i)`` for ``"e2"``, identity otherwise) and ``factor`` ``sqrt(w)``
+    transform (``log(1 + f cos_i)`` for ``"e2"``, ``cbrt(f cos_i + delta)`` for ``"cbrt"``, identity
+    otherwise) and ``factor`` ``sqrt(w)``
     times the loss's weight (``cos_i`` for ``"cosine"``, ``1 / (|y| + eps)`` for
     ``"relative"``, ``eps`` = :data:`REL_EPS`).
 
@@ -157,7 +167,7 @@ def prepare_targets(values, weight, cos_i, loss="l2"):
         Weights, zero on invalid rows.
     cos_i : array_like (N,)
         Cosine of the incident zenith angle of each row.
-    loss : {"l2", "e2", "cosine", "relative"}, default "l2"
+    loss : {"l2", "e2", "cbrt", "cosine", "relative"}, default "l2"
         The loss.
 
     Returns
@@ -202,7 +212,7 @@ def residuals_from_targets(pred, target, factor, cos_i, loss="l2", robust=None, 
         The output of :func:`prepare_targets`.
     cos_i : array_like (N,)
         Cosine of the incident zenith angle of each row (used by ``"e2"``'s transform).
-    loss : {"l2", "e2", "cosine", "relative"}, default "l2"
+    loss : {"l2", "e2", "cbrt", "cosine", "relative"}, default "l2"
         The loss ``target`` and ``factor`` were prepared for.
     robust : {None, "huber", "cauchy"}, default None
         The robust variant (see the module docstring).

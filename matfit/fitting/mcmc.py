@@ -21,7 +21,7 @@ Likelihood (Gaussian, independent residuals, full normalization)
     * ``noise="fit"``: the noise scale is sampled too (an extra parameter, label
       ``noise_scale``): a **relative** noise model ``sigma_i = s |t(y_i)| + floor``, where
       ``t(y)`` is the measured value in the loss's space (``y`` for ``"l2"``, ``y cos(theta_i)``
-      for ``"cosine"``, ``log(1 + y cos(theta_i))`` for ``"e2"``, ``y/(|y| + eps)`` for
+      for ``"cosine"``, ``log(1 + y cos(theta_i))`` for ``"e2"``, ``cbrt(y cos(theta_i))`` for ``"cbrt"``, ``y/(|y| + eps)`` for
       ``"relative"``) and ``floor`` a small absolute term (default ``1e-5 *`` the median
       ``|t(y)|``) that keeps ``sigma > 0`` where ``y = 0``. The table's ``sigma``/``weight`` then
       only selects the usable entries (weight > 0). The walkers move in ``log s`` with a prior

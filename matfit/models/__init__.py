@@ -8,7 +8,7 @@ from .diffuse_specular import DiffuseSpecular
 from .gltf_pbr import GltfPBR
 from .lambert import Lambert
 from .layered import CoatedConductor, Layered
-from .measured import MeasuredMERL, MeasuredRGL
+from .measured import MeasuredMERL, MeasuredRGL, measured_model
 from .multi_lobe import MultiLobe, SpecularLobe
 from .plastic import Plastic
 from .rough_conductor import RoughConductor
@@ -34,6 +34,7 @@ __all__ = [
     "GltfPBR",
     "MeasuredMERL",
     "MeasuredRGL",
+    "measured_model",
     "MultiLobe",
     "SpecularLobe",
     "RoughConductor",

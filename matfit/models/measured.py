@@ -58,7 +58,7 @@ from ._base import AbstractBSDF
 from ._pairs import valid_reflection
 from ._params import check_directions, check_u
 
-__all__ = ["MeasuredMERL", "MeasuredRGL"]
+__all__ = ["MeasuredMERL", "MeasuredRGL", "measured_model"]
 
 _HALF_PI = np.pi / 2
 # largest float32 below 1: random numbers are clipped into [1 - _ONE_MINUS_EPS, _ONE_MINUS_EPS]
@@ -808,3 +808,31 @@ class MeasuredMERL(AbstractBSDF):
         f = self._eval(wo, wi)
         weight = jnp.where(ok[:, None], f * wi[:, 2:3] / jnp.where(ok, pdf, 1)[:, None], 0)
         return wi, weight, jnp.where(ok, pdf, 0)
+
+
+def measured_model(table):
+    """The measured table as a model, where its provenance names an RGL ``.bsdf`` or MERL
+    ``.binary`` file that still exists (:class:`MeasuredRGL`, :class:`MeasuredMERL`); else None.
+
+    Parameters
+    ----------
+    table : matfit.Table
+
+    Returns
+    -------
+    AbstractBSDF or None
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit import Table
+    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]])
+    >>> measured_model(Table(wo=wo, wi=wo[::-1], values=np.ones((2, 3)))) is None
+    True
+    """
+    prov = getattr(table, "provenance", None) or {}
+    cls = {"rgl-tensor": MeasuredRGL, "merl": MeasuredMERL}.get(prov.get("format"))
+    src = prov.get("source")
+    if cls is None or not isinstance(src, str) or not os.path.isfile(src):
+        return None
+    return cls.from_file(src)

@@ -22,6 +22,8 @@ SKY_SHAPE = (128, 256)
 #: Direction of the sky's sun (unit, world frame) and its angular radius in radians.
 SUN_DIRECTION = np.array([0.45, 0.75, 0.48]) / np.linalg.norm([0.45, 0.75, 0.48])
 SUN_RADIUS = 0.06
+#: Linear radiance of the sky's sun.
+SUN_RADIANCE = np.array([60.0, 55.0, 45.0])
 
 
 def _dirs(H, W):
@@ -31,7 +33,7 @@ def _dirs(H, W):
     return np.stack([np.sin(T) * np.cos(P), np.cos(T), np.sin(T) * np.sin(P)], -1)
 
 
-def sky_map(shape=SKY_SHAPE):
+def sky_map(shape=SKY_SHAPE, sun=True):
     """The built-in procedural sky as an (H, W, 3) float32 equirectangular map: a blue zenith
     fading to a pale horizon, a dim brown ground, and a small bright sun.
 
@@ -39,6 +41,9 @@ def sky_map(shape=SKY_SHAPE):
     ----------
     shape : tuple of int, default SKY_SHAPE
         ``(H, W)`` of the map.
+    sun : bool, default True
+        Rasterize the sun into the map (False: the sky and ground alone, for renderers that
+        treat the sun as a light of its own).
 
     Returns
     -------
@@ -58,8 +63,8 @@ def sky_map(shape=SKY_SHAPE):
     sky = (1 - t) * np.array([1.0, 0.97, 0.92]) + t * np.array([0.25, 0.45, 0.95])
     ground = np.array([0.18, 0.14, 0.1]) * (0.6 + 0.4 * np.clip(-up, 0, 1))[..., None]
     env = np.where(up[..., None] >= 0, sky, ground)
-    sun = np.arccos(np.clip(d @ SUN_DIRECTION, -1, 1)) < SUN_RADIUS
-    env = env + sun[..., None] * np.array([60.0, 55.0, 45.0])
+    if sun:
+        env = env + (np.arccos(np.clip(d @ SUN_DIRECTION, -1, 1)) < SUN_RADIUS)[..., None] * SUN_RADIANCE
     return env.astype(np.float32)
 
 

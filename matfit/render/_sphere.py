@@ -74,7 +74,24 @@ def _uses_bsdf(model, strategy, furnace):
     return furnace or strategy != "env" or model.is_delta
 
 
-def _frames(size):
+def sphere_frames(size):
+    """``(inside, frames)`` of a size x size image of the unit sphere seen along -z: the pixels
+    inside it and each pixel's local frame, rows (tangent, bitangent, normal), shape (size, size, 3, 3).
+
+    Parameters
+    ----------
+    size : int
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+
+    Examples
+    --------
+    >>> inside, frames = sphere_frames(8)
+    >>> int(inside.sum()), frames[4, 4, 2].round(2).tolist()   # the centre pixel's normal
+    (52, [0.12, -0.12, 0.98])
+    """
     c = (np.arange(size) + 0.5) / size * 2 - 1
     X, Y = np.meshgrid(c, -c)  # row 0 at the top
     r2 = X**2 + Y**2
@@ -188,7 +205,7 @@ def render_sphere(model, environment="sky", size=256, spp=64, seed=0, strategy="
     img = load_environment(environment)
     furnace = img is None
     env = Environment.of(np.ones((2, 2, 3), np.float32) if furnace else img)
-    inside, frames = _frames(int(size))
+    inside, frames = sphere_frames(int(size))
     fr = jnp.asarray(frames[inside], jnp.float32)
     key = jax.random.PRNGKey(seed)
     blocks = max(1, min(int(spp), 8)) if progress else 1

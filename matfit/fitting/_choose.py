@@ -1,0 +1,357 @@
+r"""Which family: cheap cues of the data pick the candidates, the rendered images pick the winner.
+
+:func:`choose_family` is what ``fit(table)`` and ``matfit fit FILE`` run when no family is named:
+
+1. **Cues** (:func:`appearance_cues`), from the table alone, in the half/difference angles
+   :math:`\theta_h, \theta_d`: the specular ratio (the 90th percentile near the mirror,
+   :math:`\theta_h < 5°`, over the median off it, :math:`\theta_h > 45°`); a coloured highlight
+   (the saturation of the near-mirror excess over the floor); a colour change with angle (the
+   spread of the near-mirror chromaticity over the bands :math:`\theta_d` 0-20-40-60-90°); an
+   excess at grazing angles (off-mirror rows with both angles past 70° over the floor); a second
+   lobe (the ratio of the peak's widths at a tenth and at half of its height over the floor, 2.3
+   for one GGX lobe); an azimuthal dependence (the spread over the half vector's azimuth at
+   fixed :math:`\theta_h, \theta_d`).
+2. **Candidates**: ``lambert``, ``plastic``, ``lobes1`` and ``lobes2`` always; ``lobes3`` with a
+   second lobe; ``car_paint`` with a coloured highlight or a colour change; ``conductor`` when
+   the floor is dark (specular ratio above 200).
+3. **Judge**: every candidate is fitted, rendered beside the measurement under each lighting of
+   :data:`~matfit.appearance.JUDGE_LIGHTS` and scored by
+   :math:`s = \max_\text{lights}\max(\text{FLIP}/0.05,\ \text{CIEDE2000}/1.5)`: :math:`s \le 1`
+   is the line under which the two look alike. The chosen family is the one of fewest
+   parameters whose score is within :data:`SCORE_TOL` (10 %) of the best; the runner-up is the
+   best of the others. Without a reference to render (a table from no file, no truth), the
+   families are compared on a held-out split instead (:func:`~matfit.fitting.compare_models`).
+
+Example
+-------
+>>> import numpy as np
+>>> from matfit import Table
+>>> from matfit.fitting import appearance_cues
+>>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
+>>> appearance_cues(Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1)))["coloured_highlight"]
+False
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import ParameterError
+from ..table import Table
+from ._result import FitError
+
+#: Families every choice tries; the cues add others.
+BASE_CANDIDATES = ("lambert", "plastic", "lobes1", "lobes2")
+#: The loss of a fit chosen by appearance (E2 gave the lowest image error on the RGL files:
+#: docs/fitting.md, "Choosing the family").
+CHOICE_LOSS = "e2"
+#: A candidate within this relative margin of the best score counts as as good.
+SCORE_TOL = 0.10
+#: Cue thresholds (see the module docstring).
+CUE_LINES = {"second_lobe": 3.5, "coloured_highlight": 0.15, "colour_shift": 0.03, "grazing_excess": 1.5,
+             "azimuthal": 0.15, "dark_floor": 200.0}
+
+
+def _angles(table):
+    wo, wi = np.asarray(table.wo, float), np.asarray(table.wi, float)
+    h = wo + wi
+    h /= np.maximum(np.linalg.norm(h, axis=1, keepdims=True), 1e-12)
+    th_h = np.degrees(np.arccos(np.clip(h[:, 2], -1, 1)))
+    th_d = np.degrees(np.arccos(np.clip(np.sum(wi * h, 1), -1, 1)))
+    ph_h = np.degrees(np.arctan2(h[:, 1], h[:, 0]))
+    return th_h, th_d, ph_h, np.degrees(np.arccos(np.clip(wi[:, 2], -1, 1))), np.degrees(
+        np.arccos(np.clip(wo[:, 2], -1, 1)))
+
+
+def _chroma(v):
+    v = np.clip(v, 0, None)
+    return v / max(float(v.sum()), 1e-12)
+
+
+def appearance_cues(table):
+    """The cues of :func:`choose_family` for ``table`` (see the module docstring).
+
+    Parameters
+    ----------
+    table : matfit.Table
+
+    Returns
+    -------
+    dict
+        Each cue's value (``specular_ratio``, ``highlight_saturation``, ``colour_spread``,
+        ``grazing_ratio``, ``width_ratio``, ``azimuthal_spread``; NaN where the table has too
+        few rows for it) and the booleans ``second_lobe``, ``coloured_highlight``,
+        ``colour_shift``, ``grazing_excess``, ``azimuthal``, ``dark_floor``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit import Table
+    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
+    >>> sorted(k for k, v in appearance_cues(Table(wo=wo, wi=wi, values=np.ones((3, 3)))).items() if v is True)
+    []
+    """
+    if not isinstance(table, Table):
+        raise ParameterError(f"appearance_cues: expected a matfit.Table, got {type(table).__name__}")
+    ok = np.asarray(table.valid, bool) & np.all(np.isfinite(table.values), axis=1)
+    y = np.asarray(table.values, float)
+    th_h, th_d, ph_h, th_i, th_o = _angles(table)
+    lum = y @ np.array([0.2126, 0.7152, 0.0722]) if y.shape[1] == 3 else y[:, 0]
+    near = ok & (th_h < 5)
+    off = ok & (th_h > 45) & (th_i < 60) & (th_o < 60)
+    nan = float("nan")
+    c = {k: nan for k in ("specular_ratio", "highlight_saturation", "colour_spread", "grazing_ratio", "width_ratio",
+                          "azimuthal_spread")}
+    floor = float(np.median(lum[off])) if off.sum() >= 3 else nan
+    if near.sum() >= 3 and off.sum() >= 3:
+        peak = float(np.percentile(lum[near], 90))
+        c["specular_ratio"] = peak / max(floor, 1e-12)
+        if y.shape[1] == 3:
+            spec = np.median(y[near], 0) - np.median(y[off], 0)
+            if spec.max() > 0.05 * max(floor, 1e-12):
+                c["highlight_saturation"] = float((spec.max() - max(spec.min(), 0)) / spec.max())
+            chrom = [_chroma(np.median(y[near & (th_d >= a) & (th_d < b)], 0))
+                     for a, b in ((0, 20), (20, 40), (40, 60), (60, 90)) if (near & (th_d >= a) & (th_d < b)).sum() >= 3]
+            if len(chrom) >= 2:
+                c["colour_spread"] = float(max(np.abs(p - q).max() for p in chrom for q in chrom))
+        # the peak's widths at half and a tenth of its height over the floor (in-range rows, th_d < 30)
+        rows = ok & (th_d < 30)
+        bins = np.arange(0, 61, 2.5)
+        prof = np.array([np.median(lum[rows & (th_h >= a) & (th_h < a + 2.5)]) if (rows & (th_h >= a) & (
+            th_h < a + 2.5)).sum() >= 2 else nan for a in bins[:-1]])
+        ex = prof - floor
+        if np.isfinite(ex[0]) and ex[0] > 0.5 * max(floor, 1e-12):
+            def width(frac):
+                below = np.nonzero(np.isfinite(ex) & (ex < frac * ex[0]))[0]
+                return bins[below[0]] if below.size else nan
+            w2, w10 = width(0.5), width(0.1)
+            c["width_ratio"] = float(w10 / w2) if w2 > 0 else nan
+    graz = ok & (th_i > 70) & (th_o > 70) & (th_h > 30)
+    if graz.sum() >= 3 and np.isfinite(floor):
+        c["grazing_ratio"] = float(np.median(lum[graz]) / max(floor, 1e-12))
+    # azimuthal dependence: spread over the half vector's azimuth in (th_h, th_d) cells
+    spreads = []
+    for a in range(10, 40, 10):
+        for b in range(0, 60, 20):
+            m = ok & (th_h >= a) & (th_h < a + 10) & (th_d >= b) & (th_d < b + 20)
+            if m.sum() >= 8 and np.ptp(ph_h[m]) > 90:
+                q = lum[m]
+                spreads.append(float(np.std(q) / max(np.mean(q), 1e-12)))
+    if spreads:
+        c["azimuthal_spread"] = float(np.median(spreads))
+    L = CUE_LINES
+    c.update(second_lobe=bool(c["width_ratio"] > L["second_lobe"]),
+             coloured_highlight=bool(c["highlight_saturation"] > L["coloured_highlight"]),
+             colour_shift=bool(c["colour_spread"] > L["colour_shift"]),
+             grazing_excess=bool(c["grazing_ratio"] > L["grazing_excess"]),
+             azimuthal=bool(c["azimuthal_spread"] > L["azimuthal"]),
+             dark_floor=bool(c["specular_ratio"] > L["dark_floor"]))
+    return c
+
+
+def candidates_for(cues):
+    """The candidate families for ``cues`` (from :func:`appearance_cues`), and why each is there.
+
+    Parameters
+    ----------
+    cues : dict
+
+    Returns
+    -------
+    dict
+        ``{family: reason}``, in order of parameter count.
+
+    Examples
+    --------
+    >>> list(candidates_for({"second_lobe": True}))
+    ['lambert', 'plastic', 'lobes1', 'lobes2', 'lobes3']
+    """
+    out = {f: "always tried" for f in BASE_CANDIDATES}
+    if cues.get("second_lobe"):
+        out["lobes3"] = "the peak has a second width"
+    if cues.get("coloured_highlight") or cues.get("colour_shift"):
+        out["car_paint"] = "a coloured highlight" if cues.get("coloured_highlight") else "colour changes with angle"
+    if cues.get("dark_floor"):
+        out["conductor"] = "a dark floor under a strong peak"
+    from .params import FAMILIES, Parametrization
+
+    return dict(sorted(out.items(), key=lambda kv: Parametrization(kv[0], 3).size if kv[0] in FAMILIES else 0))
+
+
+#: What a cue says no registered family carries.
+_MISSING = {"colour_shift": "a hue that turns with angle (thin-film interference)",
+            "grazing_excess": "an excess at grazing angles (a sheen lobe)",
+            "azimuthal": "an azimuthal dependence (anisotropy)"}
+
+
+@dataclass
+class Choice:
+    """How :func:`choose_family` chose.
+
+    Attributes
+    ----------
+    chosen : str
+    runner_up : str or None
+    reason : str
+        One sentence: why the chosen family.
+    judged_by : str
+        ``"appearance"`` (rendered images) or ``"held-out error"``.
+    rows : list of dict
+        Per candidate: ``family``, ``p``, ``why`` (why a candidate), ``score``, the image means
+        per lighting (``appearance``), ``objective``, or ``error``.
+    cues : dict
+        :func:`appearance_cues`.
+    missing : list of str
+        Effects the cues see that no registered family carries.
+
+    Examples
+    --------
+    >>> Choice("lambert", None, "only candidate", "appearance", [], {}, []).chosen
+    'lambert'
+    """
+
+    chosen: str
+    runner_up: object
+    reason: str
+    judged_by: str
+    rows: list = field(default_factory=list)
+    cues: dict = field(default_factory=dict)
+    missing: list = field(default_factory=list)
+
+    def to_dict(self):
+        """For JSON: everything but the fits and images."""
+        return {"chosen": self.chosen, "runner_up": self.runner_up, "reason": self.reason,
+                "judged_by": self.judged_by, "missing": list(self.missing),
+                "cues": {k: (v if isinstance(v, bool) else (None if not np.isfinite(v) else float(v)))
+                         for k, v in self.cues.items()},
+                "candidates": [{k: v for k, v in r.items() if k not in ("result", "diff")} for r in self.rows]}
+
+    def summary(self):
+        """A few lines: the chosen family, why, and the candidates' scores."""
+        lines = [f"chose {self.chosen} by {self.judged_by}: {self.reason}"]
+        for r in self.rows:
+            if "error" in r:
+                lines.append(f"  {r['family']:14s} p={r['p']:2d}  failed: {r['error']}")
+            elif "score" in r:
+                lines.append(f"  {r['family']:14s} p={r['p']:2d}  score {r['score']:.2f}  " + "; ".join(
+                    f"{k}: FLIP {m['flip']:.3f}, CIEDE2000 {m['ciede2000']:.2f}" for k, m in r["appearance"].items()))
+            else:
+                lines.append(f"  {r['family']:14s} p={r['p']:2d}  held-out RMSE {r['holdout_rmse']:.4g}")
+        if self.missing:
+            lines.append("  the data show effects no family here carries: " + "; ".join(self.missing))
+        return "\n".join(lines)
+
+
+def _score(diff):
+    from ..appearance import CIEDE2000_LINE, FLIP_LINE
+
+    return max(max(d.means["flip"] / FLIP_LINE, d.means["ciede2000"] / CIEDE2000_LINE) for d in diff.lights.values())
+
+
+def choose_family(table, reference="auto", candidates=None, loss=None, log=None, **fit_kwargs):
+    """Fit the candidate families and keep the one whose render looks most like the reference's.
+
+    Parameters
+    ----------
+    table : matfit.Table
+    reference : "auto", matfit model or None
+        The material to look like: ``"auto"`` reads the file the table came from
+        (:func:`~matfit.models.measured_model`); a model (e.g. a synthetic table's truth);
+        None compares on a held-out split instead.
+    candidates : sequence of str, optional
+        Families to try (default: chosen by the cues, :func:`candidates_for`).
+    loss : str, optional
+        The fits' loss (default :data:`CHOICE_LOSS`).
+    log : callable, optional
+        Where a line per candidate goes.
+    **fit_kwargs
+        Passed to :func:`~matfit.fitting.robust_fit` (``method``, ``starts``, ``seed``, ...).
+
+    Returns
+    -------
+    tuple
+        The chosen :class:`~matfit.fitting.FitResult` (its ``choice`` set to the :class:`Choice`,
+        its ``appearance`` to the chosen fit's :class:`~matfit.appearance.AppearanceDiff`) and
+        the :class:`Choice`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit import Table
+    >>> from matfit.models import Lambert
+    >>> rng = np.random.default_rng(1)
+    >>> wo = rng.normal(size=(60, 3)); wo[:, 2] = abs(wo[:, 2]); wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+    >>> wi = wo[::-1].copy()
+    >>> t = Table(wo=wo, wi=wi, values=np.full((60, 3), 0.4 / np.pi))
+    >>> r, c = choose_family(t, reference=Lambert(0.4), candidates=["lambert", "plastic"], starts=1)
+    >>> c.chosen, c.judged_by
+    ('lambert', 'appearance')
+    """
+    from ..models import measured_model
+    from .params import FAMILIES, Parametrization
+    from .select import compare_models, robust_fit
+
+    if not isinstance(table, Table):
+        raise ParameterError(f"choose_family: table must be a matfit.Table, got {type(table).__name__}")
+    say = log or (lambda *a: None)
+    loss = CHOICE_LOSS if loss is None else loss
+    cues = appearance_cues(table)
+    why = candidates_for(cues) if candidates is None else {f: "asked for" for f in candidates}
+    unknown = [f for f in why if f not in FAMILIES]
+    if unknown or not why:
+        raise ParameterError(f"choose_family: unknown families {unknown}; expected some of {sorted(FAMILIES)}")
+    missing = [_MISSING[k] for k in _MISSING if cues.get(k)]
+    ref = measured_model(table) if isinstance(reference, str) and reference == "auto" else reference
+    C = table.n_channels
+    if ref is None:
+        cmp = compare_models(table, models=list(why), loss=loss, **fit_kwargs)
+        rows = [{"family": r["model"], "p": Parametrization(r["model"], C).size, "why": why[r["model"]],
+                 **({"error": r["error"]} if "error" in r else {"holdout_rmse": float(r["holdout_rmse"])})}
+                for r in cmp.rows]
+        chosen = cmp.recommended
+        result = robust_fit(table, chosen, loss=loss, **fit_kwargs)
+        others = [r for r in rows if r["family"] != chosen and "holdout_rmse" in r]
+        runner = min(others, key=lambda r: r["holdout_rmse"])["family"] if others else None
+        choice = Choice(chosen, runner, "no measured file or truth to render: the fewest parameters within "
+                        f"{cmp.tol:.0%} of the best held-out RMSE", "held-out error", rows, cues, missing)
+        result.choice, result.appearance = choice, None
+        return result, choice
+    from ..appearance import render_references, appearance_difference
+
+    refs = render_references(ref)
+    rows = []
+    for fam in why:
+        row = {"family": fam, "p": Parametrization(fam, C).size, "why": why[fam]}
+        try:
+            r = robust_fit(table, fam, loss=loss, **fit_kwargs)
+        except FitError as e:
+            row["error"] = str(e)
+            rows.append(row)
+            continue
+        d = appearance_difference(r.model, refs)
+        row.update(score=_score(d), objective=float(r.objective), result=r, diff=d,
+                   appearance={k: {m: float(v) for m, v in x.means.items()} for k, x in d.lights.items()})
+        rows.append(row)
+        say(f"  {fam:14s} p={row['p']:2d}  score {row['score']:.2f}  ({d.summary()})")
+    scored = [r for r in rows if "score" in r]
+    if not scored:
+        raise FitError(f"choose_family: every candidate failed ({'; '.join(r['error'] for r in rows)})")
+    best = min(r["score"] for r in scored)
+    within = [r for r in scored if r["score"] <= best * (1 + SCORE_TOL)]
+    pick = min(within, key=lambda r: (r["p"], r["score"]))
+    others = [r for r in scored if r is not pick]
+    runner = min(others, key=lambda r: r["score"]) if others else None
+    simplest = pick["score"] > best
+    reason = (f"{'the fewest parameters within' if simplest else 'the best image score, and no simpler family within'} "
+              f"{SCORE_TOL:.0%} of the best image score ({pick['score']:.2f}"
+              + (f" against {best:.2f}" if simplest else "") + "; 1 is the look-alike line)"
+              + (f"; runner-up {runner['family']} ({runner['score']:.2f})" if runner else ""))
+    choice = Choice(pick["family"], runner["family"] if runner else None, reason, "appearance", rows, cues, missing)
+    result = pick["result"]
+    result.choice, result.appearance = choice, pick["diff"]
+    w = pick["diff"].warning("measured" if isinstance(reference, str) else "reference")
+    if w:
+        result.warnings.append(w)
+    return result, choice
