@@ -4,16 +4,19 @@ r"""Which family: cheap cues of the data pick the candidates, the rendered image
 
 1. **Cues** (:func:`appearance_cues`), from the table alone, in the half/difference angles
    :math:`\theta_h, \theta_d`: the specular ratio (the 90th percentile near the mirror,
-   :math:`\theta_h < 5°`, over the median off it, :math:`\theta_h > 45°`); a coloured highlight
-   (the saturation of the near-mirror excess over the floor); a colour change with angle (the
-   spread of the near-mirror chromaticity over the bands :math:`\theta_d` 0-20-40-60-90°); an
-   excess at grazing angles (off-mirror rows with both angles past 70° over the floor); a second
-   lobe (the ratio of the peak's widths at a tenth and at half of its height over the floor, 2.3
-   for one GGX lobe); an azimuthal dependence (the spread over the half vector's azimuth at
-   fixed :math:`\theta_h, \theta_d`).
+   :math:`\theta_h < 5°, \theta_d < 30°`, or the ten rows closest to the mirror, over the floor,
+   the lower decile off it, :math:`\theta_h > 30°`, both angles below 70°); a coloured highlight
+   (the saturation of the near-mirror excess over the floor's colour, where the specular ratio
+   is above 2); a colour change with angle (the spread of that excess's chromaticity over the
+   bands :math:`\theta_d` 0-20-40-60-90°); an
+   excess at grazing angles (off-mirror rows with both angles past 70° over the floor, where the
+   floor is diffuse: specular ratio below 10); a second
+   lobe (the RMS, in log, of the peak's excess over the floor about the best single GGX shape in
+   :math:`\theta_h`); an azimuthal dependence (the spread of log values over the half
+   vector's azimuth in cells of :math:`\theta_h, \theta_d`, about a plane in those angles).
 2. **Candidates**: ``lambert``, ``plastic``, ``lobes1`` and ``lobes2`` always; ``lobes3`` with a
-   second lobe; ``car_paint`` with a coloured highlight or a colour change; ``conductor`` when
-   the floor is dark (specular ratio above 200).
+   second lobe; ``car_paint`` with a coloured highlight or a colour change; ``conductor`` with a
+   coloured highlight or a dark floor (specular ratio above 50).
 3. **Judge**: every candidate is fitted, rendered beside the measurement under each lighting of
    :data:`~matfit.appearance.JUDGE_LIGHTS` and scored by
    :math:`s = \max_\text{lights}\max(\text{FLIP}/0.05,\ \text{CIEDE2000}/1.5)`: :math:`s \le 1`
@@ -50,8 +53,8 @@ CHOICE_LOSS = "e2"
 #: A candidate within this relative margin of the best score counts as as good.
 SCORE_TOL = 0.10
 #: Cue thresholds (see the module docstring).
-CUE_LINES = {"second_lobe": 3.5, "coloured_highlight": 0.15, "colour_shift": 0.03, "grazing_excess": 1.5,
-             "azimuthal": 0.15, "dark_floor": 200.0}
+CUE_LINES = {"second_lobe": 0.25, "coloured_highlight": 0.15, "colour_shift": 0.1, "grazing_excess": 1.5,
+             "azimuthal": 0.1, "dark_floor": 50.0}
 
 
 def _angles(table):
@@ -70,6 +73,35 @@ def _chroma(v):
     return v / max(float(v.sum()), 1e-12)
 
 
+_PROFILE_EDGES = np.array([0, 0.5, 1, 1.5, 2, 3, 4, 5, 6, 8, 10, 12.5, 15, 20, 25, 30, 40, 50, 60, 75])
+
+
+def _lobe_misfit(th_h, lum, floor):
+    """RMS (natural log) of the near-mirror excess over the floor about the best single GGX shape
+    ``1 / (cos^4 (alpha^2 + tan^2))^2`` (alpha on a grid, amplitude free); NaN without a peak."""
+    if not np.isfinite(floor) or th_h.size < 20:
+        return float("nan")
+    idx = np.digitize(th_h, _PROFILE_EDGES) - 1
+    cen, ex = [], []
+    for b in range(len(_PROFILE_EDGES) - 1):
+        m = idx == b
+        if m.sum() >= 2:
+            cen.append(np.radians(np.median(th_h[m])))
+            ex.append(np.median(lum[m]) - floor)
+    cen, ex = np.array(cen), np.array(ex)
+    if ex.size < 4 or ex[0] <= 0.5 * max(floor, 1e-12):
+        return float("nan")
+    keep = ex > 0.03 * ex[0]  # below, the floor's own variation (a coat's Fresnel) dominates
+    cen, lex = cen[keep], np.log(ex[keep])
+    if cen.size < 4:
+        return float("nan")
+    best = np.inf
+    for a in np.geomspace(0.005, 1.0, 80):
+        shape = -np.log(np.cos(cen) ** 4 * (a * a + np.tan(cen) ** 2) ** 2)
+        best = min(best, float(np.std(lex - shape)))
+    return best
+
+
 def appearance_cues(table):
     """The cues of :func:`choose_family` for ``table`` (see the module docstring).
 
@@ -81,7 +113,7 @@ def appearance_cues(table):
     -------
     dict
         Each cue's value (``specular_ratio``, ``highlight_saturation``, ``colour_spread``,
-        ``grazing_ratio``, ``width_ratio``, ``azimuthal_spread``; NaN where the table has too
+        ``grazing_ratio``, ``lobe_misfit``, ``azimuthal_spread``; NaN where the table has too
         few rows for it) and the booleans ``second_lobe``, ``coloured_highlight``,
         ``colour_shift``, ``grazing_excess``, ``azimuthal``, ``dark_floor``.
 
@@ -99,50 +131,60 @@ def appearance_cues(table):
     y = np.asarray(table.values, float)
     th_h, th_d, ph_h, th_i, th_o = _angles(table)
     lum = y @ np.array([0.2126, 0.7152, 0.0722]) if y.shape[1] == 3 else y[:, 0]
-    near = ok & (th_h < 5)
-    off = ok & (th_h > 45) & (th_i < 60) & (th_o < 60)
+    # near the mirror: th_h < 5 deg, or the ten rows closest to it (a rough material's table may
+    # hold none that close); off it: th_h > 30 deg in range, or the farthest tenth of the rows
+    d30 = ok & (th_d < 30)
+    lim = max(5.0, float(np.sort(th_h[d30])[min(9, d30.sum() - 1)])) if d30.any() else 5.0
+    near = d30 & (th_h <= lim)
+    inrange = ok & (th_i < 70) & (th_o < 70)
+    off = inrange & (th_h > 30)
+    if off.sum() < 3 and ok.sum() >= 30:
+        off = ok & (th_h >= np.percentile(th_h[ok], 90))
     nan = float("nan")
-    c = {k: nan for k in ("specular_ratio", "highlight_saturation", "colour_spread", "grazing_ratio", "width_ratio",
+    c = {k: nan for k in ("specular_ratio", "highlight_saturation", "colour_spread", "grazing_ratio", "lobe_misfit",
                           "azimuthal_spread")}
-    floor = float(np.median(lum[off])) if off.sum() >= 3 else nan
+    # the floor: the lower decile of the in-range rows off the mirror (a diffuse level, ~0 for a metal)
+    floor = float(np.percentile(lum[off], 10)) if off.sum() >= 3 else nan
     if near.sum() >= 3 and off.sum() >= 3:
         peak = float(np.percentile(lum[near], 90))
         c["specular_ratio"] = peak / max(floor, 1e-12)
-        if y.shape[1] == 3:
-            spec = np.median(y[near], 0) - np.median(y[off], 0)
-            if spec.max() > 0.05 * max(floor, 1e-12):
-                c["highlight_saturation"] = float((spec.max() - max(spec.min(), 0)) / spec.max())
-            chrom = [_chroma(np.median(y[near & (th_d >= a) & (th_d < b)], 0))
-                     for a, b in ((0, 20), (20, 40), (40, 60), (60, 90)) if (near & (th_d >= a) & (th_d < b)).sum() >= 3]
+        if y.shape[1] == 3 and c["specular_ratio"] > 2:
+            # the highlight's own colour: the excess over the floor's colour (a white coat's
+            # highlight on a red paint is white), overall and per band of th_d
+            base = np.percentile(y[off], 10, axis=0)
+            spec = np.median(y[near], 0) - base
+            c["highlight_saturation"] = float((spec.max() - max(spec.min(), 0)) / spec.max())
+            mirror = ok & (th_h <= lim)
+            chrom = []
+            for a, b in ((0, 20), (20, 40), (40, 60), (60, 90)):
+                m = mirror & (th_d >= a) & (th_d < b)
+                if m.sum() >= 3:
+                    ex = np.median(y[m], 0) - base
+                    if ex.sum() > 0.5 * base.sum():
+                        chrom.append(_chroma(ex))
             if len(chrom) >= 2:
                 c["colour_spread"] = float(max(np.abs(p - q).max() for p in chrom for q in chrom))
-        # the peak's widths at half and a tenth of its height over the floor (in-range rows, th_d < 30)
-        rows = ok & (th_d < 30)
-        bins = np.arange(0, 61, 2.5)
-        prof = np.array([np.median(lum[rows & (th_h >= a) & (th_h < a + 2.5)]) if (rows & (th_h >= a) & (
-            th_h < a + 2.5)).sum() >= 2 else nan for a in bins[:-1]])
-        ex = prof - floor
-        if np.isfinite(ex[0]) and ex[0] > 0.5 * max(floor, 1e-12):
-            def width(frac):
-                below = np.nonzero(np.isfinite(ex) & (ex < frac * ex[0]))[0]
-                return bins[below[0]] if below.size else nan
-            w2, w10 = width(0.5), width(0.1)
-            c["width_ratio"] = float(w10 / w2) if w2 > 0 else nan
+        band = ok & (th_d < 30) & (th_h > 30) & (th_h < 45)
+        local = float(np.median(lum[band])) if band.sum() >= 3 else floor
+        c["lobe_misfit"] = _lobe_misfit(th_h[ok & (th_d < 30)], lum[ok & (th_d < 30)], local)
     graz = ok & (th_i > 70) & (th_o > 70) & (th_h > 30)
-    if graz.sum() >= 3 and np.isfinite(floor):
+    if graz.sum() >= 3 and np.isfinite(floor) and not c["specular_ratio"] >= 10:  # a diffuse floor
         c["grazing_ratio"] = float(np.median(lum[graz]) / max(floor, 1e-12))
-    # azimuthal dependence: spread over the half vector's azimuth in (th_h, th_d) cells
+    # azimuthal dependence: in (th_h, th_d) cells, the spread of log values about a plane in
+    # (th_h, th_d) (the lobe's own slope removed) over rows of different half-vector azimuth
     spreads = []
-    for a in range(10, 40, 10):
-        for b in range(0, 60, 20):
-            m = ok & (th_h >= a) & (th_h < a + 10) & (th_d >= b) & (th_d < b + 20)
+    for a in np.arange(5, 30, 2.5):
+        for b in range(0, 60, 10):
+            m = ok & (th_h >= a) & (th_h < a + 2.5) & (th_d >= b) & (th_d < b + 10) & (lum > 0)
             if m.sum() >= 8 and np.ptp(ph_h[m]) > 90:
-                q = lum[m]
-                spreads.append(float(np.std(q) / max(np.mean(q), 1e-12)))
+                X = np.stack([np.ones(m.sum()), th_h[m], th_d[m]], 1)
+                q = np.log(lum[m])
+                res = q - X @ np.linalg.lstsq(X, q, rcond=None)[0]
+                spreads.append(float(np.std(res)))
     if spreads:
         c["azimuthal_spread"] = float(np.median(spreads))
     L = CUE_LINES
-    c.update(second_lobe=bool(c["width_ratio"] > L["second_lobe"]),
+    c.update(second_lobe=bool(c["lobe_misfit"] > L["second_lobe"]),
              coloured_highlight=bool(c["highlight_saturation"] > L["coloured_highlight"]),
              colour_shift=bool(c["colour_spread"] > L["colour_shift"]),
              grazing_excess=bool(c["grazing_ratio"] > L["grazing_excess"]),
@@ -173,8 +215,8 @@ def candidates_for(cues):
         out["lobes3"] = "the peak has a second width"
     if cues.get("coloured_highlight") or cues.get("colour_shift"):
         out["car_paint"] = "a coloured highlight" if cues.get("coloured_highlight") else "colour changes with angle"
-    if cues.get("dark_floor"):
-        out["conductor"] = "a dark floor under a strong peak"
+    if cues.get("dark_floor") or cues.get("coloured_highlight"):
+        out["conductor"] = "a dark floor under a strong peak" if cues.get("dark_floor") else "a coloured highlight"
     from .params import FAMILIES, Parametrization
 
     return dict(sorted(out.items(), key=lambda kv: Parametrization(kv[0], 3).size if kv[0] in FAMILIES else 0))
