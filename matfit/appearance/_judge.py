@@ -224,7 +224,22 @@ class AppearanceDiff:
     lights: dict = field(default_factory=dict)
 
     def worst(self, metric="flip"):
-        """The largest mean of ``metric`` (``flip``, ``ciede2000``, ``itp``) over the lightings."""
+        """The largest mean of ``metric`` over the lightings.
+
+        Parameters
+        ----------
+        metric : {"flip", "ciede2000", "itp"}
+
+        Returns
+        -------
+        float
+
+        Examples
+        --------
+        >>> from matfit.models import Lambert
+        >>> appearance_difference(Lambert(0.5), Lambert(0.5), size=16).worst("itp")
+        0.0
+        """
         return max(d.means[metric] for d in self.lights.values())
 
     @property
@@ -233,8 +248,20 @@ class AppearanceDiff:
         return self.worst("flip") <= FLIP_LINE and self.worst("ciede2000") <= CIEDE2000_LINE
 
     def where(self):
-        """Where the fit fails to look alike: a list from ``near the mirror``, ``at grazing angles``,
-        ``in colour`` (empty when it looks alike)."""
+        """Where the fit fails to look alike (empty when it looks alike).
+
+        Returns
+        -------
+        list of str
+            From ``near the mirror``, ``at grazing angles``, ``in colour``; ``across the sphere``
+            when no region stands out.
+
+        Examples
+        --------
+        >>> from matfit.models import Lambert
+        >>> appearance_difference(Lambert([0.6, 0.4, 0.4]), Lambert([0.4, 0.4, 0.6]), size=24).where()
+        ['in colour']
+        """
         if self.looks_alike:
             return []
         out = []
@@ -249,7 +276,23 @@ class AppearanceDiff:
         return out or ["across the sphere"]
 
     def warning(self, reference="measured"):
-        """The poor-fit warning (None when the fit looks alike): the worst means and where it fails."""
+        """The poor-fit warning (None when the fit looks alike): the worst means and where it fails.
+
+        Parameters
+        ----------
+        reference : str, default "measured"
+            What the fit is compared with, for the message.
+
+        Returns
+        -------
+        str or None
+
+        Examples
+        --------
+        >>> from matfit.models import Lambert
+        >>> appearance_difference(Lambert(0.2), Lambert(0.6), size=16).warning()[:22]
+        'poor fit in appearance'
+        """
         if self.looks_alike:
             return None
         return (f"poor fit in appearance: the fitted sphere does not look like the {reference} one (worst mean FLIP "
@@ -257,13 +300,35 @@ class AppearanceDiff:
                 f"line {CIEDE2000_LINE}); it fails " + ", ".join(self.where()))
 
     def to_dict(self):
-        """The means and regions per lighting, for JSON."""
+        """The means and regions per lighting, ``looks_alike`` and ``where``, for JSON.
+
+        Returns
+        -------
+        dict
+
+        Examples
+        --------
+        >>> from matfit.models import Lambert
+        >>> sorted(appearance_difference(Lambert(0.5), Lambert(0.5), size=16).to_dict())
+        ['looks_alike', 'sky', 'studio', 'where']
+        """
         return {k: {"means": {m: float(v) for m, v in d.means.items()},
                     "regions": {m: float(v) for m, v in d.regions.items()}} for k, d in self.lights.items()} | {
             "looks_alike": bool(self.looks_alike), "where": self.where()}
 
     def summary(self):
-        """One line: the means under each lighting."""
+        """One line: the means under each lighting.
+
+        Returns
+        -------
+        str
+
+        Examples
+        --------
+        >>> from matfit.models import Lambert
+        >>> appearance_difference(Lambert(0.5), Lambert(0.5), lights=("sky",), size=16).summary()
+        'sky: FLIP 0.000, CIEDE2000 0.00, ΔE_ITP 0.0'
+        """
         return "; ".join(f"{k}: FLIP {d.means['flip']:.3f}, CIEDE2000 {d.means['ciede2000']:.2f}, "
                          f"ΔE_ITP {d.means['itp']:.1f}" for k, d in self.lights.items())
 

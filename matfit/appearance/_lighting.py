@@ -82,11 +82,39 @@ class Lighting:
         return 1.0 / float(np.max((np.clip(n @ self.directions.T, 0, None) @ self.weights) / np.pi))
 
     def renamed(self, name, description):
-        """The same quadrature under another name and description."""
+        """The same quadrature under another name and description.
+
+        Parameters
+        ----------
+        name, description : str
+
+        Returns
+        -------
+        Lighting
+
+        Examples
+        --------
+        >>> LIGHTINGS["sky"].renamed("my sky", "a copy").name
+        'my sky'
+        """
         return Lighting(name, self.directions, self.weights, description)
 
     def refined(self, factor):
-        """The same lighting with a ``factor`` times finer quadrature (see :data:`LIGHTINGS`)."""
+        """The same lighting with a ``factor`` times finer quadrature (shipped lightings only).
+
+        Parameters
+        ----------
+        factor : int
+
+        Returns
+        -------
+        Lighting
+
+        Examples
+        --------
+        >>> LIGHTINGS["studio"].refined(2).directions.shape[0] > LIGHTINGS["studio"].directions.shape[0]
+        True
+        """
         return _BUILDERS[self.name](int(factor)) if self.name in _BUILDERS else self
 
 

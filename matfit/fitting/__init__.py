@@ -1,6 +1,6 @@
 """Fitting model families to measurement tables: parameters, losses, solvers, uncertainty."""
 
-from .fit import (METHODS, BatchFit, FitError, FitResult, fit, fit_arrays, fit_batch, guesses_from_arrays, initial_guess,
+from .fit import (METHODS, BatchFit, FitError, FitResult, fit_arrays, fit_batch, guesses_from_arrays, initial_guess,
                   initial_guesses)
 from .losses import LOSSES, residuals
 from .methods import DEFAULT_METHOD, Method, get_method
@@ -20,6 +20,6 @@ from .select import ModelComparison, compare_models, recommend, robust_fit  # no
 from ._history import loss_history  # noqa: E402
 
 __all__ += ["ModelComparison", "compare_models", "recommend", "robust_fit", "loss_history"]
-from ._choose import (CHOICE_LOSS, Choice, appearance_cues, candidates_for, choose_family)  # noqa: E402
+from ._choose import CHOICE_LOSS, Choice, appearance_cues, candidates_for, choose_family, fit  # noqa: E402
 
 __all__ += ["CHOICE_LOSS", "Choice", "appearance_cues", "candidates_for", "choose_family"]

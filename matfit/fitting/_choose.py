@@ -37,6 +37,7 @@ False
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -44,6 +45,7 @@ import numpy as np
 from ..errors import ParameterError
 from ..table import Table
 from ._result import FitError
+from .fit import fit as _fit_named
 
 #: Families every choice tries; the cues add others.
 BASE_CANDIDATES = ("lambert", "plastic", "lobes1", "lobes2")
@@ -263,7 +265,17 @@ class Choice:
     missing: list = field(default_factory=list)
 
     def to_dict(self):
-        """For JSON: everything but the fits and images."""
+        """For JSON: everything but the fits and images.
+
+        Returns
+        -------
+        dict
+
+        Examples
+        --------
+        >>> Choice("lambert", None, "only candidate", "appearance").to_dict()["chosen"]
+        'lambert'
+        """
         return {"chosen": self.chosen, "runner_up": self.runner_up, "reason": self.reason,
                 "judged_by": self.judged_by, "missing": list(self.missing),
                 "cues": {k: (v if isinstance(v, bool) else (None if not np.isfinite(v) else float(v)))
@@ -271,7 +283,17 @@ class Choice:
                 "candidates": [{k: v for k, v in r.items() if k not in ("result", "diff")} for r in self.rows]}
 
     def summary(self):
-        """A few lines: the chosen family, why, and the candidates' scores."""
+        """A few lines: the chosen family, why, and the candidates' scores.
+
+        Returns
+        -------
+        str
+
+        Examples
+        --------
+        >>> Choice("lambert", None, "only candidate", "appearance").summary()
+        'chose lambert by appearance: only candidate'
+        """
         lines = [f"chose {self.chosen} by {self.judged_by}: {self.reason}"]
         for r in self.rows:
             if "error" in r:
@@ -397,3 +419,13 @@ def choose_family(table, reference="auto", candidates=None, loss=None, log=None,
     if w:
         result.warnings.append(w)
     return result, choice
+
+
+@functools.wraps(_fit_named)
+def fit(table, model=None, method=None, loss=None, fixed=None, tied=(), init=None, **kwargs):
+    if model is None:
+        if fixed or tied or init is not None:
+            raise ParameterError("fit: fixed, tied and init name parameters of one family: name the family (model=...)")
+        return choose_family(table, loss=loss, **({} if method is None else {"method": method}), **kwargs)[0]
+    return _fit_named(table, model, **({} if method is None else {"method": method}), loss=loss, fixed=fixed,
+                           tied=tied, init=init, **kwargs)

@@ -94,13 +94,8 @@ def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust
     t0 = time.perf_counter()
     if not isinstance(table, Table):
         raise ParameterError(f"fit: table must be a matfit.Table, got {type(table).__name__}")
-    if model is None:
-        if fixed or tied or init is not None:
-            raise ParameterError("fit: fixed, tied and init name parameters of one family: name the family (model=...)")
-        from ._choose import choose_family
-
-        return choose_family(table, loss=loss, method=method, robust=robust, robust_scale=robust_scale, starts=starts,
-                             max_steps=max_steps, rtol=rtol, atol=atol, seed=seed, dtype=dtype)[0]
+    if model is None:  # matfit.fitting.fit (in _choose) chooses the family; this one fits a named one
+        raise ParameterError("fit: name the family (model=...), or call matfit.fitting.fit to choose it")
     loss = "l2" if loss is None else loss
     get_method(method, "fit", model, loss)
     check_loss(loss, robust)
