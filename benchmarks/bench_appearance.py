@@ -13,14 +13,12 @@ from __future__ import annotations
 
 import argparse
 import resource
-import statistics
 import sys
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from _common import print_table, write_json  # noqa: E402
+from _common import print_table, time_jax, write_json  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -32,16 +30,10 @@ from matfit.render import render_sphere  # noqa: E402
 DEFAULT_FILE = Path(__file__).resolve().parents[2] / "shared/data/rgl/paper_white_rgb.bsdf"
 
 
-def _timed(fn, repeat):
-    t0 = time.perf_counter()
-    out = fn()
-    first = time.perf_counter() - t0
-    warm = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        warm.append(time.perf_counter() - t0)
-    return out, first, warm
+def _row(call, what, fn, repeat):
+    t = time_jax(fn, repeat=repeat, lower=False)
+    return {"call": call, "what": what, "first_s": t["first_call_s"], "median_s": t["median_s"],
+            "times_s": t["times_s"]}, t["result"]
 
 
 def main(argv=None):
@@ -53,20 +45,16 @@ def main(argv=None):
     import jax.numpy as jnp
 
     fitted = MultiLobe(jnp.array([0.72, 0.73, 0.87]), [SpecularLobe(0.54, weight=1.0, f0=0.16)])  # paper's lobes1 fit
-    rows = []
-    refs, first, warm = _timed(lambda: render_references(meas), ns.repeat)
-    rows.append({"call": "render_references(MeasuredRGL(file))", "what": "measurement, sky + studio, 96 px",
-                 "first_s": first, "median_s": statistics.median(warm), "times_s": warm})
-    _, first, warm = _timed(lambda: appearance_difference(fitted, refs), ns.repeat)
-    rows.append({"call": "appearance_difference(fit, refs)", "what": "fit's renders + FLIP, CIEDE2000, ITP",
-                 "first_s": first, "median_s": statistics.median(warm), "times_s": warm})
+    row, refs = _row("render_references(MeasuredRGL(file))", "measurement, sky + studio, 96 px",
+                     lambda: render_references(meas), ns.repeat)
+    rows = [row]
+    rows.append(_row("appearance_difference(fit, refs)", "fit's renders + FLIP, CIEDE2000, ITP",
+                     lambda: appearance_difference(fitted, refs), ns.repeat)[0])
     for name in ("sky", "studio"):
-        _, first, warm = _timed(lambda: render_lit(meas, name), ns.repeat)
-        rows.append({"call": f'render_lit(MeasuredRGL, "{name}")', "what": f"{LIGHTINGS[name].directions.shape[0]} "
-                     "directions", "first_s": first, "median_s": statistics.median(warm), "times_s": warm})
-    _, first, warm = _timed(lambda: render_sphere(meas, "sky", size=128, spp=32), ns.repeat)
-    rows.append({"call": 'render_sphere(MeasuredRGL, "sky", size=128, spp=32)', "what": "baseline: the old "
-                 "Monte Carlo preview", "first_s": first, "median_s": statistics.median(warm), "times_s": warm})
+        rows.append(_row(f'render_lit(MeasuredRGL, "{name}")', f"{LIGHTINGS[name].directions.shape[0]} directions",
+                         lambda: render_lit(meas, name), ns.repeat)[0])
+    rows.append(_row('render_sphere(MeasuredRGL, "sky", size=128, spp=32)', "baseline: the old Monte Carlo preview",
+                     lambda: render_sphere(meas, "sky", size=128, spp=32), ns.repeat)[0])
     base = rows[-1]["median_s"]
     for r in rows:
         r["vs_baseline"] = r["median_s"] / base

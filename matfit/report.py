@@ -716,7 +716,8 @@ def _previews(out, result, reference, files):
     else:
         info["panels"] = ["fitted"]
         img = np.concatenate([display(render_lit(model, k)[0], lighting(k).exposure) for k in JUDGE_LIGHTS], axis=0)
-    save_png(out / "preview.png", img)  # the images are already exposed for display
+    # the images are already exposed for display; shown twice as large (nearest pixel)
+    save_png(out / "preview.png", np.repeat(np.repeat(img, 2, axis=0), 2, axis=1))
     files["preview"] = "preview.png"
     return info
 
@@ -791,7 +792,8 @@ def _appearance_markdown(pv, files):
         return []
     what = " | ".join(pv["panels"])
     L = ["## Appearance", "", f"Spheres rendered noise-free ({pv['renderer']}, {pv['size']} px), one row per lighting: "
-         f"{what}. Lightings: " + "; ".join(f"`{k}`, {v}" for k, v in pv["lights"].items()) + ".", ""]
+         f"{what}{' (FLIP per pixel, magma: black 0, white 1)' if 'FLIP' in pv['panels'] else ''}. Lightings: " + "; ".join(
+        f"`{k}`, {v}" for k, v in pv["lights"].items()) + ".", ""]
     if "looks_alike" in pv:
         from .appearance import CIEDE2000_LINE, FLIP_LINE
 

@@ -236,3 +236,20 @@ def test_cli_errors_exit_2_with_one_line(argv, needle, lambertian, tmp_path, cap
     assert len(lines) == 1, err
     assert needle in lines[0], lines[0]
     assert lines[0].startswith("matfit")
+
+
+def test_cli_fit_without_a_family_chooses_one_by_appearance(lambertian, tmp_path, capsys):
+    """``matfit fit TABLE`` with no --model: the candidates' lines, the choice and why, and a
+    report with the table of candidates (a synthetic table: its truth is the reference)."""
+    path = tmp_path / "white.npz"
+    save(path, lambertian)
+    rc, out, err = run_cli(["fit", path, "--report", tmp_path / "r", "--starts", "1"], capsys)
+    assert rc == 0, err
+    assert "chose lambert by appearance" in out and "runner-up" in out
+    for fam in ("lambert", "plastic", "lobes1", "lobes2"):
+        assert f"  {fam} " in out
+    j = json.loads((tmp_path / "r" / "report.json").read_text())
+    assert j["family"] == "lambert" and j["choice"]["chosen"] == "lambert" and j["loss"] == "e2"
+    assert j["preview"]["panels"] == ["truth", "fitted", "FLIP"] and j["preview"]["looks_alike"]
+    md = (tmp_path / "r" / "report.md").read_text()
+    assert "## Why this family" in md and "| lambert (chosen) |" in md and "## Appearance" in md

@@ -38,6 +38,7 @@ False
 from __future__ import annotations
 
 import functools
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -314,7 +315,7 @@ def _score(diff):
     return max(max(d.means["flip"] / FLIP_LINE, d.means["ciede2000"] / CIEDE2000_LINE) for d in diff.lights.values())
 
 
-def choose_family(table, reference="auto", candidates=None, loss=None, log=None, **fit_kwargs):
+def choose_family(table, reference="auto", candidates=None, loss=None, log=None, workers=2, **fit_kwargs):
     """Fit the candidate families and keep the one whose render looks most like the reference's.
 
     Parameters
@@ -330,6 +331,8 @@ def choose_family(table, reference="auto", candidates=None, loss=None, log=None,
         The fits' loss (default :data:`CHOICE_LOSS`).
     log : callable, optional
         Where a line per candidate goes.
+    workers : int, default 2
+        Candidates fitted and judged at once (threads; 1: one after the other).
     **fit_kwargs
         Passed to :func:`~matfit.fitting.robust_fit` (``method``, ``starts``, ``seed``, ...).
 
@@ -385,20 +388,25 @@ def choose_family(table, reference="auto", candidates=None, loss=None, log=None,
     from ..appearance import render_references, appearance_difference
 
     refs = render_references(ref)
-    rows = []
-    for fam in why:
+    def candidate(fam):
         row = {"family": fam, "p": Parametrization(fam, C).size, "why": why[fam]}
         try:
             r = robust_fit(table, fam, loss=loss, **fit_kwargs)
         except FitError as e:
-            row["error"] = str(e)
-            rows.append(row)
-            continue
+            return dict(row, error=str(e))
         d = appearance_difference(r.model, refs)
-        row.update(score=_score(d), objective=float(r.objective), result=r, diff=d,
-                   appearance={k: {m: float(v) for m, v in x.means.items()} for k, x in d.lights.items()})
-        rows.append(row)
-        say(f"  {fam:14s} p={row['p']:2d}  score {row['score']:.2f}  ({d.summary()})")
+        return dict(row, score=_score(d), objective=float(r.objective), result=r, diff=d,
+                    appearance={k: {m: float(v) for m, v in x.means.items()} for k, x in d.lights.items()})
+
+    # candidates in threads: their compilations (most of a first run's time) overlap on the cores
+    if workers > 1 and len(why) > 1:
+        with ThreadPoolExecutor(max_workers=workers) as ex:
+            rows = list(ex.map(candidate, why))
+    else:
+        rows = [candidate(f) for f in why]
+    for row in rows:
+        if "score" in row:
+            say(f"  {row['family']:14s} p={row['p']:2d}  score {row['score']:.2f}  ({row['diff'].summary()})")
     scored = [r for r in rows if "score" in r]
     if not scored:
         raise FitError(f"choose_family: every candidate failed ({'; '.join(r['error'] for r in rows)})")
