@@ -22,7 +22,8 @@ r"""Which family: cheap cues of the data pick the candidates, the rendered image
    :math:`s = \max_\text{lights}\max(\text{FLIP}/0.05,\ \text{CIEDE2000}/1.5)`: :math:`s \le 1`
    is the line under which the two look alike. The chosen family is the one of fewest
    parameters whose score is within :data:`SCORE_TOL` (10 %) of the best; the runner-up is the
-   best of the others. Without a reference to render (a table from no file, no truth), the
+   best of the others. Without a reference to render (a table from no file, no truth; or
+   channels other than 1 or 3), the
    families are compared on a held-out split instead (:func:`~matfit.fitting.compare_models`).
 
 Example
@@ -133,7 +134,7 @@ def appearance_cues(table):
     ok = np.asarray(table.valid, bool) & np.all(np.isfinite(table.values), axis=1)
     y = np.asarray(table.values, float)
     th_h, th_d, ph_h, th_i, th_o = _angles(table)
-    lum = y @ np.array([0.2126, 0.7152, 0.0722]) if y.shape[1] == 3 else y[:, 0]
+    lum = y @ np.array([0.2126, 0.7152, 0.0722]) if y.shape[1] == 3 else y.mean(axis=1)
     # near the mirror: th_h < 5 deg, or the ten rows closest to it (a rough material's table may
     # hold none that close); off it: th_h > 30 deg in range, or the farthest tenth of the rows
     d30 = ok & (th_d < 30)
@@ -226,7 +227,7 @@ def candidates_for(cues):
 
 
 #: What a cue says no registered family carries.
-_MISSING = {"colour_shift": "a hue that turns with angle (thin-film interference)",
+_MISSING = {"colour_shift": "a highlight whose hue turns with angle (thin-film interference, a tinted layer)",
             "grazing_excess": "an excess at grazing angles (a sheen lobe)",
             "azimuthal": "an azimuthal dependence (anisotropy)"}
 
@@ -372,6 +373,8 @@ def choose_family(table, reference="auto", candidates=None, loss=None, log=None,
     missing = [_MISSING[k] for k in _MISSING if cues.get(k)]
     ref = measured_model(table) if isinstance(reference, str) and reference == "auto" else reference
     C = table.n_channels
+    if C not in (1, 3):
+        ref = None  # spectral channels: no sRGB image to judge
     if ref is None:
         cmp = compare_models(table, models=list(why), loss=loss, **fit_kwargs)
         rows = [{"family": r["model"], "p": Parametrization(r["model"], C).size, "why": why[r["model"]],
