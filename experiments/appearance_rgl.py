@@ -132,10 +132,21 @@ def main(argv=None):
     ap.add_argument("--losses", default=",".join(LOSSES))
     ap.add_argument("--summary", action="store_true", help="only rebuild the page from the JSON")
     ns = ap.parse_args(argv)
+    files = [f for f in ns.files.split(",") if f]
     if ns.summary:
         rec = json.loads((OUT / "appearance_rgl.json").read_text())
+    elif len(files) != 1:
+        # a process per file: one process compiling every candidate of every file (about 100
+        # programs) runs out of the kernel's mapped sections (vm.max_map_count) inside LLVM
+        import subprocess
+
+        for p in sorted((Path(ns.shared) / "data" / "rgl").glob("*.bsdf")):
+            if not files or p.stem in files or p.stem.replace("_rgb", "") in files:
+                subprocess.run([sys.executable, __file__, ns.shared, "--files", p.stem, "--losses", ns.losses],
+                               check=True)
+        rec = json.loads((OUT / "appearance_rgl.json").read_text())
     else:
-        rec = run(ns.shared, [f for f in ns.files.split(",") if f], ns.losses.split(","))
+        rec = run(ns.shared, files, ns.losses.split(","))
     print(write_page(rec))
 
 
