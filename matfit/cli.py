@@ -122,7 +122,12 @@ def _cmd_fit(args):
         from data_synth import truth_from_table
 
         truth = truth_from_table(table, args.model)
-    run_pipeline(table, args.model, method=None if args.method == "mcmc" else args.method, loss=args.loss,
+    cands = None
+    if args.candidates:
+        if args.model:
+            raise ValueError("--candidates chooses among families: leave out --model")
+        cands = [c.strip() for c in args.candidates.split(",") if c.strip()]
+    run_pipeline(table, args.model, candidates=cands, method=None if args.method == "mcmc" else args.method, loss=args.loss,
                  fixed=_parse_fixed(args.fixed), starts=args.starts, max_steps=args.max_steps, seed=args.seed,
                  posterior_steps=args.mcmc_steps if args.method == "mcmc" else 0,
                  truth=truth, report=args.report, report_table=full,
@@ -297,6 +302,8 @@ def build_parser():
     fi.add_argument("--method", default=DEFAULT_METHOD, choices=list(METHODS) + ["mcmc"],
                     help=f"solver (default {DEFAULT_METHOD}; see matfit.fitting.methods); "
                          f"mcmc: {DEFAULT_METHOD}, then posterior sampling")
+    fi.add_argument("--candidates", default=None, metavar="A,B",
+                    help="without --model: the families to choose from (default: those the data call for)")
     fi.add_argument("--loss", default=None, choices=list(LOSSES),
                     help="loss (default l2 for a named family, e2 when the family is chosen)")
     fi.add_argument("--fixed", nargs="+", action="extend", default=[], metavar="NAME=VALUE",

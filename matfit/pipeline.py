@@ -71,7 +71,7 @@ def _fixed_line(result):
     return "  fixed: " + ", ".join(f"{k}={np.asarray(v).round(6).tolist()}" for k, v in fixed.items())
 
 
-def run_pipeline(table, model=None, *, method=None, loss=None, fixed=None, tied=(), starts=4, max_steps=256, seed=0,
+def run_pipeline(table, model=None, *, candidates=None, method=None, loss=None, fixed=None, tied=(), starts=4, max_steps=256, seed=0,
                  posterior_steps=0, truth=None, report=None, report_table=None, title=None, save_model=None,
                  source=None, export=(), compare=(), holdout=0.2, compare_json=None,
                  log: Optional[Callable] = print) -> PipelineResult:
@@ -87,6 +87,8 @@ def run_pipeline(table, model=None, *, method=None, loss=None, fixed=None, tied=
         measured file the table came from).
     method : str, optional
         A method of :data:`matfit.fitting.METHODS` (default: :data:`~matfit.fitting.DEFAULT_METHOD`).
+    candidates : sequence of str, optional
+        With ``model=None``: the families to choose from (default: those the data call for).
     loss : str, optional
         As for :func:`matfit.fitting.fit` (``"l2"`` for a named family, ``"e2"`` when chosen).
     fixed : dict, optional
@@ -167,7 +169,7 @@ def run_pipeline(table, model=None, *, method=None, loss=None, fixed=None, tied=
         ref = truth.get("model") if isinstance(truth, dict) and truth.get("model") is not None else "auto"
         say("choosing the family: fitting the candidates the data call for and rendering each beside the "
             + ("truth" if ref != "auto" else "measurement"))
-        result, choice = choose_family(table, reference=ref, loss=loss, method=method, starts=starts,
+        result, choice = choose_family(table, reference=ref, candidates=candidates, loss=loss, method=method, starts=starts,
                                        max_steps=max_steps, seed=seed, log=say)
         model, loss = result.family, result.loss
         say(choice.summary().splitlines()[0])

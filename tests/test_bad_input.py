@@ -173,7 +173,7 @@ def test_parametrization(kw, needle):
     (dict(fixed={"albedo": "x"}), "fixed albedo='x': expected real numbers"),
     (dict(model="plastic", fixed={"eta": 1.5}, init={"eta": 1.5}), "fit: init: 'eta' is fixed"),
     (dict(method="newton"), "fit: method must be one of"),
-    (dict(loss="l3"), "loss must be one of ['l2', 'e2', 'cosine', 'relative'], got 'l3'"),
+    (dict(loss="l3"), "loss must be one of ['l2', 'e2', 'cbrt', 'cosine', 'relative'], got 'l3'"),
 ])
 def test_fit_arguments(mono, kw, needle):
     kw = {"model": "lambert", **kw}

@@ -216,6 +216,8 @@ def test_cli_compare(lambertian, cmp_lambertian, tmp_path, capsys):
     (["compare", "{dir}/ok.npz", "--models", "lambert,nosuch"], "model must be one of"),
     (["compare", "{dir}/ok.npz", "--holdout", "1.5"], "fraction"),
     (["fit", "{dir}/ok.npz", "--fixed", "albedo=0.5"], "--model"),
+    (["fit", "{dir}/ok.npz", "--model", "lambert", "--candidates", "lambert"], "leave out --model"),
+    (["fit", "{dir}/ok.npz", "--candidates", "lambert,nosuch"], "unknown families"),
     (["export", "{dir}/missing.json", "--to", "gltf", "-o", "{dir}/x.gltf"], "no such file"),
     (["export", "{dir}/ok.npz", "--to", "gltf", "-o", "{dir}/x.gltf"], "not a JSON document"),
     (["export", "{dir}/m.json", "--to", "blender", "-o", "{dir}/x"], "invalid choice"),
@@ -243,10 +245,11 @@ def test_cli_fit_without_a_family_chooses_one_by_appearance(lambertian, tmp_path
     report with the table of candidates (a synthetic table: its truth is the reference)."""
     path = tmp_path / "white.npz"
     save(path, lambertian)
-    rc, out, err = run_cli(["fit", path, "--report", tmp_path / "r", "--starts", "1"], capsys)
+    rc, out, err = run_cli(["fit", path, "--report", tmp_path / "r", "--starts", "1", "--candidates",
+                            "lambert,conductor"], capsys)
     assert rc == 0, err
-    assert "chose lambert by appearance" in out and "runner-up" in out
-    for fam in ("lambert", "plastic", "lobes1", "lobes2"):
+    assert "chose lambert by appearance" in out and "runner-up conductor" in out
+    for fam in ("lambert", "conductor"):
         assert f"  {fam} " in out
     j = json.loads((tmp_path / "r" / "report.json").read_text())
     assert j["family"] == "lambert" and j["choice"]["chosen"] == "lambert" and j["loss"] == "e2"
