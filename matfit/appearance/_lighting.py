@@ -29,6 +29,7 @@ Examples
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import equinox as eqx
@@ -278,6 +279,23 @@ def _pairs(size, light):
     return inside, wo, wi, wgt
 
 
+@functools.lru_cache(maxsize=4)
+def _device_pairs(size, name, directions, weights):
+    """:func:`_pairs` in pixel blocks on the device, kept for the next render of the same lighting
+    (four at most: a lighting's arrays are 100-200 MB at the default size)."""
+    light = Lighting(name, np.frombuffer(directions).reshape(-1, 3), np.frombuffer(weights).reshape(-1, 3))
+    inside, wo, wi, wgt = _pairs(size, light)
+    P = wo.shape[0]
+    nb = -(-P // BLOCK)
+    pad = nb * BLOCK - P
+
+    def blocks(a, fill):
+        a = np.concatenate([a, np.broadcast_to(fill, (pad,) + a.shape[1:])]) if pad else a
+        return jnp.asarray(a.reshape((nb, BLOCK) + a.shape[1:]), jnp.float32)
+
+    return inside, P, blocks(wo, [0.0, 0.0, 1.0]), blocks(wi, [0.0, 0.0, 1.0]), blocks(wgt, 0.0)
+
+
 @eqx.filter_jit
 def _shade(model, wo, wi, wgt):
     def block(args):
@@ -325,19 +343,12 @@ def render_lit(model, light="sky", size=SIZE, refine=1):
     light = lighting(light)
     if refine != 1:
         light = light.refined(refine)
-    inside, wo, wi, wgt = _pairs(int(size), light)
-    P = wo.shape[0]
-    nb = -(-P // BLOCK)
-    pad = nb * BLOCK - P
-
-    def blocks(a, fill):
-        a = np.concatenate([a, np.broadcast_to(fill, (pad,) + a.shape[1:])]) if pad else a
-        return jnp.asarray(a.reshape((nb, BLOCK) + a.shape[1:]), jnp.float32)
-
-    out = _shade(model, blocks(wo, [0.0, 0.0, 1.0]), blocks(wi, [0.0, 0.0, 1.0]), blocks(wgt, 0.0))
-    val = np.asarray(out, np.float64).reshape(nb * BLOCK, 3)[:P]
+    inside, P, wo, wi, wgt = _device_pairs(int(size), light.name, np.asarray(light.directions, np.float64).tobytes(),
+                                           np.asarray(light.weights, np.float64).tobytes())
+    out = _shade(model, wo, wi, wgt)
+    val = np.asarray(out, np.float64).reshape(-1, 3)[:P]
     if not np.all(np.isfinite(val)):
         raise ParameterError(f"render_lit: the render of {type(model).__name__} has non-finite pixels")
     img = np.zeros((size, size, 3), np.float32)
     img[inside] = val
-    return img, inside
+    return img, inside.copy()

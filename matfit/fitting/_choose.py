@@ -353,9 +353,9 @@ def choose_family(table, reference="auto", candidates=None, loss=None, log=None,
     >>> wo = rng.normal(size=(60, 3)); wo[:, 2] = abs(wo[:, 2]); wo /= np.linalg.norm(wo, axis=1, keepdims=True)
     >>> wi = wo[::-1].copy()
     >>> t = Table(wo=wo, wi=wi, values=np.full((60, 3), 0.4 / np.pi))
-    >>> r, c = choose_family(t, reference=Lambert(0.4), candidates=["lambert", "conductor"], starts=1)
-    >>> c.chosen, c.judged_by
-    ('lambert', 'appearance')
+    >>> r, c = choose_family(t, reference=Lambert(0.4), candidates=["lambert"], starts=1)
+    >>> c.chosen, c.judged_by, r.appearance.looks_alike
+    ('lambert', 'appearance', True)
     """
     from ..models import measured_model
     from .params import FAMILIES, Parametrization
