@@ -659,8 +659,9 @@ def write_report(result, table, out_dir, posterior=None, truth=None, history=Non
         "model": describe_model(result.model), "preview": previews,
         "family": result.family, "method": result.method, "loss": result.loss,
         "converged": bool(result.converged), "steps": int(result.steps), "wall_time_s": float(result.wall_time),
+        # a chosen fit's appearance warning is among its own warnings already
         "warnings": list(getattr(result, "warnings", [])) + ([previews["warning"]] if previews and previews.get(
-            "warning") and previews["warning"] not in getattr(result, "warnings", []) else []),
+            "warning") and getattr(result, "appearance", None) is None else []),
         "choice": result.choice.to_dict() if getattr(result, "choice", None) is not None else None,
         "start_objectives": np.asarray(result.start_objectives, float).tolist(),
         "table": {"n": len(table), "n_valid": int(table.n_valid), "channels": table.channels if isinstance(table.channels, str)
@@ -692,7 +693,7 @@ def _previews(out, result, reference, files):
     """Render ``preview.png``: per judging lighting, reference | fitted | FLIP map (noise-free,
     :mod:`matfit.appearance`), or the fitted spheres alone; ``reference`` is ``(model or None, name)``."""
     from .appearance import JUDGE_LIGHTS, SIZE, appearance_difference, display, lighting, render_lit
-    from .render import save_png
+    from .render import save_png, srgb_decode
 
     model = result.model
     if model.channels not in (1, 3):
@@ -701,12 +702,12 @@ def _previews(out, result, reference, files):
     info = {"renderer": "quadrature over each lighting (noise-free, matfit.appearance)", "size": SIZE,
             "lights": {k: lighting(k).description for k in JUDGE_LIGHTS}}
     if reference is not None and getattr(reference, "channels", 0) in (1, 3):
-        diff = result.appearance if getattr(result, "appearance", None) is not None else (
-            appearance_difference(model, reference))
+        judged = getattr(result, "appearance", None)  # a chosen fit was judged already
+        diff = judged if judged is not None else appearance_difference(model, reference)
         import matplotlib
 
         magma = matplotlib.colormaps["magma"]
-        rows = [np.concatenate([d.reference, d.fitted, _linear(magma(np.clip(d.flip, 0, 1))[..., :3])], axis=1)
+        rows = [np.concatenate([d.reference, d.fitted, srgb_decode(magma(np.clip(d.flip, 0, 1))[..., :3])], axis=1)
                 for d in diff.lights.values()]
         info.update(diff.to_dict(), panels=[ref_name, "fitted", "FLIP"])
         w = diff.warning(ref_name)
@@ -720,11 +721,6 @@ def _previews(out, result, reference, files):
     save_png(out / "preview.png", np.repeat(np.repeat(img, 2, axis=0), 2, axis=1))
     files["preview"] = "preview.png"
     return info
-
-
-def _linear(srgb):
-    """sRGB codes in [0, 1] to linear (so that save_png shows the colour map as it is)."""
-    return np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
 
 
 def _write_markdown(path, s, table, result, has_truth, has_post, files):
@@ -814,20 +810,22 @@ def _appearance_markdown(pv, files):
 def _choice_markdown(c):
     if not c:
         return []
+    by_image = c["judged_by"] == "appearance"
     L = ["## Why this family", "", f"Chosen by {c['judged_by']}: **{c['chosen']}**, {c['reason']}.", "",
-         "| family | parameters | why a candidate | score | " + (
-             "worst mean FLIP | worst mean CIEDE2000 |" if c["judged_by"] == "appearance" else "held-out RMSE |"),
-         "| --- | --- | --- | --- | --- |" + (" --- |" if c["judged_by"] == "appearance" else "")]
+         "| family | parameters | why a candidate | " + (
+             "score | worst mean FLIP | worst mean CIEDE2000 |" if by_image else "held-out RMSE |"),
+         "|" + " --- |" * (6 if by_image else 4)]
     for r in c["candidates"]:
         if "error" in r:
-            L.append(f"| {r['family']} | {r['p']} | {r['why']} | failed: {r['error']} | |")
+            L.append(f"| {r['family']} | {r['p']} | {r['why']} | failed: {r['error']} |" + (" | |" if by_image else ""))
         elif "score" in r:
             a = r["appearance"]
             L.append(f"| {r['family']}{' (chosen)' if r['family'] == c['chosen'] else ''} | {r['p']} | {r['why']} | "
                      f"{r['score']:.2f} | {max(v['flip'] for v in a.values()):.3f} | "
                      f"{max(v['ciede2000'] for v in a.values()):.2f} |")
         else:
-            L.append(f"| {r['family']} | {r['p']} | {r['why']} | {r['holdout_rmse']:.4g} | |")
+            L.append(f"| {r['family']}{' (chosen)' if r['family'] == c['chosen'] else ''} | {r['p']} | {r['why']} | "
+                     f"{r['holdout_rmse']:.4g} |")
     L.append("")
     if c["missing"]:
         L += ["The data show effects no family here carries: " + "; ".join(c["missing"]) + ".", ""]

@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ParameterError
+from ..render import srgb_encode
 from ._lighting import SIZE, lighting, render_lit
 
 #: The lightings a fit is judged under.
@@ -61,10 +62,6 @@ def display(img, exposure):
     [[1.0, 0.25, 0.0]]
     """
     return np.clip(np.asarray(img, np.float64) * exposure, 0.0, 1.0)
-
-
-def _srgb(x):
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
 
 
 def _xyz(x):
@@ -162,8 +159,8 @@ def flip_map(a, b):
         import flip_evaluator
     except ImportError:  # pragma: no cover - a dependency of matfit
         raise ParameterError("flip_map: needs the flip-evaluator package (pip install flip-evaluator)") from None
-    ref = np.ascontiguousarray(_srgb(np.asarray(a, np.float64)), np.float32)
-    test = np.ascontiguousarray(_srgb(np.asarray(b, np.float64)), np.float32)
+    ref = np.ascontiguousarray(srgb_encode(a), np.float32)
+    test = np.ascontiguousarray(srgb_encode(b), np.float32)
     err, _, _ = flip_evaluator.evaluate(ref, test, "LDR", inputsRGB=True, applyMagma=False, computeMeanError=False)
     return np.asarray(err, np.float64).reshape(ref.shape[:2])
 
@@ -409,11 +406,10 @@ def appearance_difference(model, reference, lights=JUDGE_LIGHTS, size=SIZE):
     for name, (light, ref_img, inside) in refs.items():
         fit_img, _ = render_lit(model, light, inside.shape[0])
         e = light.exposure
-        a, b = display(ref_img, e), display(fit_img, e)
-        a[~inside], b[~inside] = 0.0, 0.0
+        a, b = display(ref_img, e), display(fit_img, e)  # both zero outside the sphere
         fl = flip_map(a, b) * inside
-        de = ciede2000_map(a, b) * inside
         la, lb = lab(a), lab(b)
+        de = colour.delta_E(la, lb, method="CIE 2000") * inside  # ciede2000_map, Lab computed once
         lb[..., 0] = la[..., 0]  # lightness matched: what is left is hue and chroma
         de_c = colour.delta_E(la, lb, method="CIE 2000") * inside
         it = itp_map(a, b) * inside

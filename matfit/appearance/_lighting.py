@@ -263,28 +263,27 @@ def lighting(spec):
     return map_light(spec, "map", description=f"the map {spec}" if isinstance(spec, str) else "a map")
 
 
-def _pairs(size, light):
+def _pairs(size, directions, weights):
     """Per pixel inside the sphere: wo, the visible light directions (padded) and their weights."""
     inside, frames = sphere_frames(size)
     F = frames[inside]  # (P, 3, 3) rows t, b, n
     wo = F[:, :, 2]  # the camera direction (0, 0, 1) in each local frame
-    cos = F[:, 2, :] @ light.directions.T  # (P, M)
+    cos = F[:, 2, :] @ directions.T  # (P, M)
     vis = cos > 1e-6
     K = max(int(vis.sum(1).max()), 1)
     order = np.argsort(~vis, axis=1, kind="stable")[:, :K]
     keep = np.take_along_axis(vis, order, 1)
-    wi = np.einsum("pij,pkj->pki", F, light.directions[order])
+    wi = np.einsum("pij,pkj->pki", F, directions[order])
     wi = np.where(keep[..., None], wi, np.array([0.0, 0.0, 1.0]))
-    wgt = np.where(keep[..., None], light.weights[order] * np.clip(wi[..., 2:3], 0, None), 0.0)
+    wgt = np.where(keep[..., None], weights[order] * np.clip(wi[..., 2:3], 0, None), 0.0)
     return inside, wo, wi, wgt
 
 
 @functools.lru_cache(maxsize=4)
-def _device_pairs(size, name, directions, weights):
+def _device_pairs(size, directions, weights):
     """:func:`_pairs` in pixel blocks on the device, kept for the next render of the same lighting
-    (four at most: a lighting's arrays are 100-200 MB at the default size)."""
-    light = Lighting(name, np.frombuffer(directions).reshape(-1, 3), np.frombuffer(weights).reshape(-1, 3))
-    inside, wo, wi, wgt = _pairs(size, light)
+    (keyed by its arrays' bytes; four at most: a lighting's arrays are 100-200 MB at the default size)."""
+    inside, wo, wi, wgt = _pairs(size, np.frombuffer(directions).reshape(-1, 3), np.frombuffer(weights).reshape(-1, 3))
     P = wo.shape[0]
     nb = -(-P // BLOCK)
     pad = nb * BLOCK - P
@@ -343,7 +342,7 @@ def render_lit(model, light="sky", size=SIZE, refine=1):
     light = lighting(light)
     if refine != 1:
         light = light.refined(refine)
-    inside, P, wo, wi, wgt = _device_pairs(int(size), light.name, np.asarray(light.directions, np.float64).tobytes(),
+    inside, P, wo, wi, wgt = _device_pairs(int(size), np.asarray(light.directions, np.float64).tobytes(),
                                            np.asarray(light.weights, np.float64).tobytes())
     out = _shade(model, wo, wi, wgt)
     val = np.asarray(out, np.float64).reshape(-1, 3)[:P]

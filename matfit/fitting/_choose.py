@@ -433,10 +433,9 @@ def choose_family(table, reference="auto", candidates=None, loss=None, log=None,
 
 
 @functools.wraps(_fit_named)
-def fit(table, model=None, method=None, loss=None, fixed=None, tied=(), init=None, **kwargs):
+def fit(table, model=None, fixed=None, tied=(), init=None, **kwargs):
     if model is None:
         if fixed or tied or init is not None:
             raise ParameterError("fit: fixed, tied and init name parameters of one family: name the family (model=...)")
-        return choose_family(table, loss=loss, **({} if method is None else {"method": method}), **kwargs)[0]
-    return _fit_named(table, model, **({} if method is None else {"method": method}), loss=loss, fixed=fixed,
-                           tied=tied, init=init, **kwargs)
+        return choose_family(table, **kwargs)[0]
+    return _fit_named(table, model, fixed=fixed, tied=tied, init=init, **kwargs)

@@ -2,7 +2,8 @@
 map, by BSDF sampling, environment sampling and multiple importance sampling (in JAX)."""
 
 from ._env import SUN_DIRECTION, SUN_RADIANCE, SUN_RADIUS, Environment, load_environment, sky_map
-from ._sphere import STRATEGIES, RenderStats, image_ciede2000, render_sphere, save_png, sphere_frames, tonemap
+from ._sphere import (STRATEGIES, RenderStats, image_ciede2000, render_sphere, save_png, sphere_frames, srgb_decode,
+                      srgb_encode, tonemap)
 
 __all__ = ["render_sphere", "RenderStats", "STRATEGIES", "Environment", "sky_map", "load_environment", "tonemap",
-           "save_png", "image_ciede2000", "sphere_frames", "SUN_DIRECTION", "SUN_RADIUS", "SUN_RADIANCE"]
+           "save_png", "image_ciede2000", "sphere_frames", "srgb_encode", "srgb_decode", "SUN_DIRECTION", "SUN_RADIUS", "SUN_RADIANCE"]

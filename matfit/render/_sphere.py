@@ -277,9 +277,47 @@ def tonemap(img, exposure=1.0):
     >>> tonemap(np.full((1, 1, 3), 0.5), exposure=0.5)[0, 0].tolist()   # linear 0.25 is sRGB 137
     [137, 137, 137]
     """
-    x = np.clip(np.asarray(img, np.float64) * exposure, 0, 1)
-    s = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
-    return np.round(s * 255).astype(np.uint8)
+    return np.round(srgb_encode(np.clip(np.asarray(img, np.float64) * exposure, 0, 1)) * 255).astype(np.uint8)
+
+
+def srgb_encode(x):
+    """The sRGB transfer function: linear values in [0, 1] to codes in [0, 1] (IEC 61966-2-1).
+
+    Parameters
+    ----------
+    x : array_like
+
+    Returns
+    -------
+    numpy.ndarray
+
+    Examples
+    --------
+    >>> float(srgb_encode(0.25).round(4)), float(srgb_decode(srgb_encode(0.25)).round(6))
+    (0.5371, 0.25)
+    """
+    x = np.asarray(x, np.float64)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(np.maximum(x, 0.0031308), 1 / 2.4) - 0.055)
+
+
+def srgb_decode(c):
+    """The inverse of :func:`srgb_encode`: sRGB codes in [0, 1] to linear values.
+
+    Parameters
+    ----------
+    c : array_like
+
+    Returns
+    -------
+    numpy.ndarray
+
+    Examples
+    --------
+    >>> float(srgb_decode(1.0))
+    1.0
+    """
+    c = np.asarray(c, np.float64)
+    return np.where(c <= 0.04045, c / 12.92, ((np.maximum(c, 0.04045) + 0.055) / 1.055) ** 2.4)
 
 
 def save_png(path, img, exposure=1.0):
