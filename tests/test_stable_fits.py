@@ -112,6 +112,31 @@ def test_outliers_are_flagged_by_least_squares():
     assert not r.ok and any(w.startswith("outliers") for w in r.warnings), r.summary()
 
 
+def _conductor_noise_table(rel, add, seed=3, outlier_rows=0):
+    """A GGX conductor table without sigma (values over 2.8 decades), noise ``rel`` of the value
+    plus ``add`` of the median value, every ``outlier_rows``-th row tripled."""
+    wo, wi = _dirs()
+    f = np.asarray(RoughConductor(0.15, [0.2, 0.4, 1.4], [3.4, 2.3, 1.9]).eval(wo, wi), float)
+    rng = np.random.default_rng(seed)
+    y = f * (1 + rel * rng.standard_normal(f.shape)) + add * np.median(f) * rng.standard_normal(f.shape)
+    if outlier_rows:
+        y[::outlier_rows] *= 3.0
+    return Table(wo=wo, wi=wi, values=y)
+
+
+@pytest.mark.parametrize("rel,add", [(0.01, 0.0), (0.05, 0.0), (0.0, 0.01), (0.01, 0.001)])
+def test_noise_proportional_to_the_value_is_not_called_outliers(rel, add):
+    """Multiplicative noise makes the peak's residuals large in absolute terms; classed as such,
+    they are not outliers (before the noise model, 52 of 432 residuals were called outliers at 1 %)."""
+    r = fit(_conductor_noise_table(rel, add), model="conductor")
+    assert not any(w.startswith("outliers") for w in r.warnings), r.summary()
+
+
+def test_outliers_under_proportional_noise_still_fire():
+    r = fit(_conductor_noise_table(0.01, 0.0, outlier_rows=20), model="conductor")
+    assert any(w.startswith("outliers") and "proportional noise" in w for w in r.warnings), r.summary()
+
+
 @pytest.mark.parametrize("n", [8, 9, 1000, 1001])
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 def test_outlier_test_median_is_numpys(n, dtype):

@@ -15,7 +15,11 @@ at a bound             a parameter ended within :data:`BOUND_TOL` (relative to i
                        a bound: the best fit lies at or beyond the family's range.
 outliers               residuals beyond :data:`OUTLIER_Z` robust standard deviations
                        (1.4826 MAD) on more rows than Gaussian noise explains: try
-                       ``robust="huber"``/``"cauchy"`` or mask the rows.
+                       ``robust="huber"``/``"cauchy"`` or mask the rows. The noise is first
+                       classed as additive or proportional to the value (the model whose
+                       standardized residuals have the lighter tail beyond 3 robust standard
+                       deviations), and the residuals are standardized by it: noise of a
+                       few per cent of the value is not a set of outliers.
 poor fit               with the table's own sigma: reduced :math:`\chi^2` above
                        :data:`CHI2_MAX`.
 multiple optima        another start reached an objective within 0.1 % of the best at
@@ -44,6 +48,29 @@ BOUND_TOL = 1e-4
 OUTLIER_Z = 6.0
 #: reduced chi-square above which a fit with known sigma is called poor
 CHI2_MAX = 3.0
+
+
+def _standardized(r, scale, data_scale):
+    """``(|z|, kind)``: the residuals over a robust noise scale, additive or proportional to
+    ``scale``, whichever leaves the lighter tail beyond 3 (None when the spread is rounding)."""
+    best = None
+    models = [("additive", np.ones_like(r))]
+    if scale is not None:
+        floor = 1e-3 * max(float(_median_of_copy(scale)), 1e-300)  # a zero value keeps a finite scale
+        models.append(("proportional", scale.astype(r.dtype, copy=False) + floor))
+    for kind, s in models:
+        x = r / s
+        dev = np.abs(x - _median_of_copy(x))
+        mad = 1.4826 * _median_of_copy(dev)
+        if kind == "additive" and not (mad > 1e-7 * data_scale and mad > 0):
+            return None, kind  # an exact fit: no outlier test on rounding noise
+        if not mad > 0:
+            continue
+        z = dev / mad
+        tail = np.count_nonzero(z > 3)
+        if best is None or tail < best[0]:
+            best = (tail, z, kind)
+    return best[1], best[2]
 
 
 def identifiability(Jt, labels, lower, upper, gram=None):
@@ -117,7 +144,7 @@ def _median_of_copy(a):
 
 def diagnose(*, labels, values, stderr, lower, upper, residuals, converged, steps, max_steps, known_sigma,
              dof, Jt=None, gram=None, data_scale=0.0, start_values=None, start_objectives=None, best=0,
-             start_reference=None, start_stderr=None):
+             start_reference=None, start_stderr=None, scale=None):
     """Warnings (list of str) about a fit's optimum; see the module docstring for each check.
 
     All arguments are keywords.
@@ -156,6 +183,10 @@ def diagnose(*, labels, values, stderr, lower, upper, residuals, converged, step
         The objective each start reached.
     best : int, default 0
         Index of the best start.
+    scale : array_like, optional
+        The measured values in the residuals' space and layout (the loss's target times the
+        square root of the weight): the scale of noise proportional to the value. Without it
+        the noise is taken as additive.
     start_reference, start_stderr : ndarray (p,), optional
         Where and at which standard errors the starts are compared (default: ``values`` and
         ``stderr``). A large table's starts are compared where they ended on its subset
@@ -195,18 +226,19 @@ def diagnose(*, labels, values, stderr, lower, upper, residuals, converged, step
         if a or b:
             out.append(f"at a bound: {lab} = {v:.6g} is at its {'lower' if a else 'upper'} bound "
                        f"{lo if a else hi:g}; the best fit lies at or outside the family's range")
-    r = np.asarray(residuals)
-    r = r[r != 0].astype(np.result_type(r.dtype, np.float32), copy=False)  # float32 stays float32 (medians of millions)
+    r_all = np.asarray(residuals)
+    keep = r_all != 0
+    r = r_all[keep].astype(np.result_type(r_all.dtype, np.float32), copy=False)  # float32 stays float32 (medians of millions)
     if r.size >= 8:
-        dev = np.abs(r - _median_of_copy(r))
-        mad = 1.4826 * _median_of_copy(dev)
-        if mad > 1e-7 * data_scale and mad > 0:
-            n_out = int(np.count_nonzero(dev > OUTLIER_Z * mad))
+        z, kind = _standardized(r, None if scale is None else np.abs(np.asarray(scale)).reshape(-1)[keep.reshape(-1)],
+                                data_scale)
+        if z is not None:
+            n_out = int(np.count_nonzero(z > OUTLIER_Z))
             # Gaussian noise gives P(|z| > 6) ~ 2e-9: a handful is already significant
             if n_out > max(2, 1e-4 * r.size):
                 out.append(f"outliers: {n_out} of {r.size} residuals are more than {OUTLIER_Z:g} robust standard "
-                           f"deviations from the fit (largest {dev.max() / mad:.3g}); use robust='huber' or 'cauchy', "
-                           "or mask them")
+                           f"deviations from the fit under {kind} noise (largest {z.max():.3g}); use robust='huber' "
+                           "or 'cauchy', or mask them")
     if known_sigma and dof > 0:
         chi2 = float(np.sum(np.square(r, dtype=float))) / dof
         if chi2 > CHI2_MAX:

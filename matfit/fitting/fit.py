@@ -35,7 +35,7 @@ from ._starts import (SCREEN_PER_START, compiled_helpers, fit_starts, guesses_fr
                       initial_guesses, screened_starts)
 from .diagnostics import diagnose
 from .lm import column_groups
-from .losses import check_loss
+from .losses import check_loss, prepare_targets
 from .methods import DEFAULT_METHOD, METHODS, get_method
 from .params import Parametrization, check_solver_options
 
@@ -156,7 +156,7 @@ def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust
         labels=par.labels, values=values, stderr=se, lower=lower, upper=upper, gram=At, residuals=r_best,
         converged=bool(np.asarray(ok)[best]), steps=int(np.asarray(steps)[best]), max_steps=int(max_steps),
         known_sigma=table.sigma is not None and loss == "l2" and robust is None, dof=n_res - par.size,
-        data_scale=data_scale, best=best, **start_kw)
+        data_scale=data_scale, best=best, scale=_value_scale(arrays, loss, robust), **start_kw)
     se = np.where(np.isin(par.labels, unident), np.inf, se)
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(se, se)
@@ -233,6 +233,15 @@ def fit_batch(tables, model="plastic", method=DEFAULT_METHOD, loss="l2", fixed=N
                        f"(tables {idx[:10].tolist()}{' ...' if idx.size > 10 else ''}); fit them one by one with fit() "
                        "to see why")
     return res.values, res.objective, res.labels
+
+
+def _value_scale(arrays, loss, robust):
+    """The measured values in the residuals' space, ``|target| * factor`` (N * C,): the scale
+    of noise proportional to the value (:func:`~matfit.fitting.diagnostics.diagnose`)."""
+    if robust is not None:
+        return None
+    target, factor = prepare_targets(arrays[2], arrays[3], arrays[1][:, 2], loss)
+    return np.abs(np.asarray(target) * np.asarray(factor)).reshape(-1)
 
 
 def _check_stack(where, wo, wi, values, weight, valid):
