@@ -100,7 +100,9 @@ def test_car_paint_to_mitsuba_is_a_fitted_blend_that_mitsuba_evaluates():
     paint = CoatedConductor(0.3, [0.2, 0.9, 1.1], [3.9, 2.4, 2.2], alpha_coat=0.05)
     r = to_mitsuba(paint)
     assert not r.exact and r.fidelity is not None and r.fidelity.method == "fitted"
-    assert r.fidelity.relative_rmse < 0.05
+    # the blend looks like the paint: fitted in least squares it matched the coat's sharp peak
+    # (relative RMSE 1.4 %) and rendered four times too dark (CIEDE2000 21); the cube-root fit 2.0
+    assert r.fidelity.ciede2000 < 3.0, r.fidelity
     assert r.content["type"] == "blendbsdf" and isinstance(r.model, Blend)
     wo, wi = _pairs()
     ours = np.asarray(r.model.eval(jnp.asarray(wo, jnp.float32), jnp.asarray(wi, jnp.float32)))
@@ -183,7 +185,7 @@ def test_gltf_approximates_a_conductor_by_a_fitted_metal():
     assert not r.exact and r.fidelity.method == "fitted"
     assert r.fidelity.relative_rmse < 0.06  # Schlick's F0 and glTF's height-correlated masking
     # the spheres of the model and of its glTF stand-in look alike (CIEDE2000 ~1 is barely visible)
-    assert r.fidelity.ciede2000 is not None and r.fidelity.ciede2000 < 2.0
+    assert r.fidelity.ciede2000 is not None and r.fidelity.ciede2000 < 1.0
     pbr = r.content["materials"][0]["pbrMetallicRoughness"]
     assert pbr["metallicFactor"] == 1.0
     # the fitted F0 is close to gold's normal-incidence reflectance (red > green > blue)

@@ -124,6 +124,34 @@ def test_noise_fit_recovers_scale(x64):
     assert lo < 0.03 < hi and hi - lo < 0.02, post.ci90[-1]
 
 
+def test_demo_posterior_meets_its_criterion():
+    """`make demo`'s posterior (the gold conductor of the demo scene, 34 rows, the demo's cap):
+    the default DE moves meet ``n_steps > tau_factor * max(tau)``; emcee's stretch move needed
+    over 20000 steps here (the red channel's eta and k trade off along a ridge)."""
+    import inspect
+
+    from data_synth import load_scene, synthesize
+
+    from matfit.demo import run_fit_demo
+    from matfit.pipeline import run_pipeline
+
+    table = synthesize(load_scene("demo"))
+    cap = inspect.signature(run_fit_demo).parameters["mcmc_steps"].default
+    res = run_pipeline(table, "conductor", posterior_steps=cap, log=None)
+    post = res.posterior
+    assert post.moves == "de" and post.burn_in + post.n_steps <= cap
+    assert post.converged and post.n_steps > post.tau_factor * post.autocorr_time.max(), post.summary()
+    # what the chain is good for: every parameter has hundreds of independent samples
+    assert post.n_effective.min() > 500, post.summary()
+
+
+def test_stretch_moves_still_sample(lambert_posteriors):
+    t, ref = lambert_posteriors[0.01]
+    post = sample_posterior(t, model="lambert", progress=False, seed=1, max_steps=4000, moves="stretch")
+    assert post.moves == "stretch" and post.converged
+    np.testing.assert_allclose(post.median, ref.median, atol=3 * ref.std.max())
+
+
 def test_bad_arguments_raise():
     t = _lambert_table(0.02, n=20)
     nos = _lambert_table(0.02, n=20, sigma=False)
@@ -145,6 +173,8 @@ def test_bad_arguments_raise():
         dict(start="a fit"),
         dict(fixed={"eta": 1.5}),
         dict(noise_floor=1e-3),  # only with noise="fit"
+        dict(moves="walk"),
+        dict(moves=None),
     ]
     for kw in bad:
         kw = {"table": t, "model": "lambert", "progress": False, **kw}

@@ -335,15 +335,15 @@ def test_eval_soa_equals_eval(rng):
 # ------------------------------------------------------------------------------------------------
 # 7. families
 # ------------------------------------------------------------------------------------------------
-def _p(name, lo, hi, per_channel=False, doc="", generic=None):
-    return Param(name, lo, hi, per_channel, doc, generic)
+def _p(name, lo, hi, per_channel=False, doc="", generic=None, physical=(False, False)):
+    return Param(name, lo, hi, per_channel, doc, generic, physical)
 
 
 _ALPHA = _p("alpha", 1e-3, 1.5, False, "GGX width", 0.2)
-_METAL = (_p("eta", 0.05, 8.0, True, "real index", 1.0), _p("k", 0.0, 12.0, True, "extinction", 3.0))
+_METAL = (_p("eta", 0.05, 8.0, True, "real index", 1.0), _p("k", 0.0, 12.0, True, "extinction", 3.0, (True, False)))
 #: the families as they were before the composed ones were added (params, doc, constant starts, truth)
 EXISTING = {
-    "lambert": ((_p("albedo", 0.0, 1.0, True, "diffuse albedo", 0.5),), "Lambertian diffuse", {},
+    "lambert": ((_p("albedo", 0.0, 1.0, True, "diffuse albedo", 0.5, (True, True)),), "Lambertian diffuse", {},
                 TruthMap("Lambert")),
     "conductor": ((_ALPHA,) + _METAL, "rough conductor, GGX, separable Smith", {},
                   TruthMap("RoughConductor", {"distribution": (None, "ggx")})),
@@ -353,15 +353,16 @@ EXISTING = {
     "dielectric": ((_ALPHA, _p("eta", 1.01, 4.0, False, "relative index", 1.5)),
                    "rough dielectric (reflection and transmission)", {"eta": 1.5},
                    TruthMap("RoughDielectric", {"distribution": (None, "ggx")})),
-    "plastic": ((_p("albedo", 0.0, 1.0, True, "base albedo", 0.5), _p("alpha", 1e-3, 1.5, False, "coat GGX width", 0.2),
+    "plastic": ((_p("albedo", 0.0, 1.0, True, "base albedo", 0.5, (True, True)), _p("alpha", 1e-3, 1.5, False, "coat GGX width", 0.2),
                  _p("eta", 1.05, 3.0, False, "coat index", 1.5)), "Lambertian base under a rough coat", {"eta": 1.5},
                 TruthMap("Plastic")),
     "car_paint": ((_p("alpha_base", 1e-3, 1.5, False, "metal GGX width", 0.2),
-                   _p("eta_base", 0.05, 8.0, True, "metal index", 1.0), _p("k_base", 0.0, 12.0, True, "metal extinction", 3.0),
+                   _p("eta_base", 0.05, 8.0, True, "metal index", 1.0), _p("k_base", 0.0, 12.0, True, "metal extinction", 3.0, (True, False)),
                    _p("alpha_coat", 1e-3, 1.0, False, "coat GGX width", 0.1),
                    _p("eta_coat", 1.05, 2.5, False, "coat index", 1.5)), "rough metal under a rough clear coat", {},
                   TruthMap("CoatedConductor")),
-    "diffuse_specular": ((_p("albedo", 0.0, 1.0, True, "diffuse albedo", 0.5), _p("f0", 0.0, 1.0, True, "specular F0 (Schlick)"),
+    "diffuse_specular": ((_p("albedo", 0.0, 1.0, True, "diffuse albedo", 0.5, (True, True)),
+                          _p("f0", 0.0, 1.0, True, "specular F0 (Schlick)", None, (True, True)),
                           _ALPHA), "Lambertian albedo plus a GGX lobe with Schlick's Fresnel (the texel model of captures)",
                          {}, None),
 }

@@ -265,7 +265,19 @@ def test_black_table_flags_bound():
     t = Table(wo=wo, wi=wi, values=np.zeros((len(wo), 3)))
     r = fit(t, model="lambert", starts=1)
     _finite(r)
-    assert any(w.startswith("at a bound") for w in r.warnings) and not r.ok, r.summary()
+    bound = [w for w in r.warnings if w.startswith("at a bound")]
+    assert bound and not r.ok, r.summary()
+    # albedo 0 is physics (no diffuse light), not the edge of an arbitrary range
+    assert all("a physical limit" in w for w in bound), bound
+
+
+def test_range_limit_is_called_a_range_limit():
+    """A metal whose width lies beyond the family's range (alpha 3 > 1.5): the warning says the
+    bound is a range limit of the family and how to widen it, not that the data ask for nothing."""
+    r = fit(_table(RoughConductor(3.0, 0.5, 3.0), channels="mono"), model="conductor", starts=2)
+    _finite(r)
+    bound = {w.split(" = ")[0].removeprefix("at a bound: "): w for w in r.warnings if w.startswith("at a bound")}
+    assert "alpha" in bound and "a range limit" in bound["alpha"] and "compose_family(bounds=" in bound["alpha"], r.warnings
 
 
 def test_wrong_family_with_sigma_is_flagged():

@@ -198,12 +198,13 @@ def coated_metal_family():
     """The family fitted to a coated conductor for Mitsuba (which has no coated-conductor plugin):
     a ``blendbsdf`` of a clear-coat lobe (a ``roughconductor`` with the coat's real index and
     k = 0, i.e. the dielectric Fresnel) and a metal lobe."""
-    from ..fitting import Family, Param
+    from ..fitting import METAL_ETA_RANGE, METAL_K_RANGE, Family, Param
 
     return Family("mitsuba_coated_metal", (
         Param("alpha_coat", 1e-3, 1.0, False, "coat lobe GGX width"), Param("eta_coat", 1.05, 2.5, False, "coat index"),
-        Param("alpha", 1e-3, 1.5, False, "metal GGX width"), Param("eta", 0.05, 8.0, True, "metal index"),
-        Param("k", 0.0, 12.0, True, "metal extinction"), Param("weight", 0.0, 1.0, False, "metal lobe weight")),
+        Param("alpha", 1e-3, 1.5, False, "metal GGX width"), Param("eta", *METAL_ETA_RANGE, True, "metal index"),
+        Param("k", *METAL_K_RANGE, True, "metal extinction", physical=(True, False)),
+        Param("weight", 0.0, 1.0, False, "metal lobe weight", physical=(True, True))),
         _build_coated, "blend of a clear-coat lobe and a metal lobe (Mitsuba roughconductor x 2)")
 
 

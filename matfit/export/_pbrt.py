@@ -65,11 +65,11 @@ def _pbrt_exact(m):
 @functools.lru_cache(maxsize=None)
 def conductor_family():
     """The family fitted when pbrt cannot take a conductor as it is: GGX, height-correlated Smith."""
-    from ..fitting import Family, Param
+    from ..fitting import METAL_ETA_RANGE, METAL_K_RANGE, Family, Param
 
     return Family("pbrt_conductor", (
-        Param("alpha", 1e-3, 1.5, False, "GGX width"), Param("eta", 0.05, 8.0, True, "real index"),
-        Param("k", 0.0, 12.0, True, "extinction")),
+        Param("alpha", 1e-3, 1.5, False, "GGX width"), Param("eta", *METAL_ETA_RANGE, True, "real index"),
+        Param("k", *METAL_K_RANGE, True, "extinction", physical=(True, False))),
         lambda p, C: RoughConductor(p["alpha"], p["eta"], p["k"], masking="height_correlated"),
         "pbrt-v4 conductor (Trowbridge-Reitz, height-correlated Smith)")
 

@@ -172,8 +172,8 @@ class Fidelity:
         How the target's parameters were found: ``"fitted"`` (matfit's fitter, the target's
         BRDF as a matfit model fitted to the source) or ``"mapped"`` (one-to-one).
     ciede2000 : float or None
-        Mean CIEDE2000 between spheres of the source and the target rendered under the built-in
-        sky (:func:`matfit.render.render_sphere`), when measured.
+        Mean CIEDE2000 over the pixels of spheres of the source and the target rendered
+        noise-free under the sky lighting (:func:`matfit.appearance.render_lit`), when measured.
 
     Examples
     --------

@@ -5,10 +5,11 @@ from .fit import (METHODS, BatchFit, FitError, FitResult, fit_arrays, fit_batch,
 from .losses import LOSSES, residuals
 from .methods import DEFAULT_METHOD, Method, get_method
 from .params import FAMILIES, Family, Lobe, Param, Parametrization, TruthMap, compose_family, family_describing, get_family
+from ._compose import METAL_ETA_RANGE, METAL_K_RANGE
 
 __all__ = [
     "FAMILIES", "Family", "Param", "Parametrization", "TruthMap", "family_describing", "get_family", "Lobe",
-    "compose_family",
+    "compose_family", "METAL_ETA_RANGE", "METAL_K_RANGE",
     "LOSSES", "residuals", "DEFAULT_METHOD", "Method", "get_method",
     "METHODS", "FitError", "FitResult", "fit", "fit_batch", "initial_guess", "initial_guesses",
     "BatchFit", "fit_arrays", "guesses_from_arrays",

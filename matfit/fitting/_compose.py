@@ -39,7 +39,8 @@ from ..microfacet import DISTRIBUTIONS, MASKING_FORMS
 from ..models import MultiLobe, SoAPairs, SpecularLobe
 from ..models.multi_lobe import FRESNEL_KINDS
 
-__all__ = ["Lobe", "Slot", "LobeSpec", "LobeRefine", "lobe_layout", "WEIGHT_MODES", "SHAREABLE"]
+__all__ = ["Lobe", "Slot", "LobeSpec", "LobeRefine", "lobe_layout", "WEIGHT_MODES", "SHAREABLE", "METAL_ETA_RANGE",
+           "METAL_K_RANGE"]
 
 #: How the lobes are weighted: a per-channel weight each, a mixture (weights summing to 1), or 1.
 WEIGHT_MODES = ("channels", "mixture", "none")
@@ -47,6 +48,9 @@ WEIGHT_MODES = ("channels", "mixture", "none")
 SHAREABLE = ("f0", "eta", "k")
 #: Widths of lobes 1, 2, 3, ... at the generic start: narrow, medium, wide (factor 4 apart).
 GENERIC_ALPHA, GENERIC_RATIO = 0.05, 4.0
+#: The ranges a fitted metal's real index and extinction take: range limits of the fit (a
+#: tabulated metal reaches k ~ 10 in the visible), except k = 0, a dielectric's Fresnel.
+METAL_ETA_RANGE, METAL_K_RANGE = (0.05, 8.0), (0.0, 12.0)
 #: Bounds of a width ratio of ordered lobes.
 RATIO_BOUNDS = (1.0, 100.0)
 #: The data-driven start's candidate widths: the first lobe at these factors of the peak's half
@@ -144,8 +148,8 @@ def _fresnel_slot(kind, lobe, fresnel, per_channel, name, lobes):
     if kind == "eta" and fresnel == "dielectric":
         return Slot(name, kind, lobes, 1.01, 4.0, per_channel, "dielectric index", 1.5)
     if kind == "eta":
-        return Slot(name, kind, lobes, 0.05, 8.0, per_channel, "conductor real index", 1.0)
-    return Slot(name, kind, lobes, 0.0, 12.0, per_channel, "conductor extinction", 3.0)
+        return Slot(name, kind, lobes, *METAL_ETA_RANGE, per_channel, "conductor real index", 1.0)
+    return Slot(name, kind, lobes, *METAL_K_RANGE, per_channel, "conductor extinction", 3.0)
 
 
 def lobe_layout(base, lobes, weights, ordered, share, tied):

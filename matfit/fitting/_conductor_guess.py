@@ -28,6 +28,7 @@ import numpy as np
 
 from ..fresnel import fresnel_conductor
 from ..microfacet import make_distribution
+from ._compose import METAL_ETA_RANGE, METAL_K_RANGE
 
 #: Rows darker than this fraction of the brightest row carry no shape information for the guess.
 _MIN_RELATIVE = 1e-3
@@ -117,7 +118,7 @@ def _width_scores(wo, wi, h, alphas, mean, bins, distribution):
     return jnp.sum(ok * dev**2, axis=1) / jnp.maximum(ok.sum(axis=1), 1)
 
 
-def conductor_guess(wo, wi, values, alpha0, distribution="ggx", eta_range=(0.05, 8.0), k_range=(0.0, 12.0),
+def conductor_guess(wo, wi, values, alpha0, distribution="ggx", eta_range=METAL_ETA_RANGE, k_range=METAL_K_RANGE,
                     valid=None):
     """Starting ``alpha`` (scalar) and per-channel ``eta``, ``k`` for a rough conductor table.
 

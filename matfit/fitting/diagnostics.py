@@ -12,7 +12,10 @@ not identifiable       the Gauss-Newton matrix :math:`J^T J` (natural parameters
                        apart (e.g. every row at one angle). The parameters that dominate the
                        weak directions are named, and their standard errors are set to ``inf``.
 at a bound             a parameter ended within :data:`BOUND_TOL` (relative to its range) of
-                       a bound: the best fit lies at or beyond the family's range.
+                       a bound. A physical limit (:attr:`Param.physical <matfit.fitting.Param>`:
+                       a weight or albedo of 0 or 1, an extinction of 0) says the data ask
+                       for none or all of a term; a range limit (a width of 1e-3, a metal
+                       index of 8) says the best fit may lie beyond the family's range.
 outliers               residuals beyond :data:`OUTLIER_Z` robust standard deviations
                        (1.4826 MAD) on more rows than Gaussian noise explains: try
                        ``robust="huber"``/``"cauchy"`` or mask the rows. The noise is first
@@ -144,7 +147,7 @@ def _median_of_copy(a):
 
 def diagnose(*, labels, values, stderr, lower, upper, residuals, converged, steps, max_steps, known_sigma,
              dof, Jt=None, gram=None, data_scale=0.0, start_values=None, start_objectives=None, best=0,
-             start_reference=None, start_stderr=None, scale=None):
+             start_reference=None, start_stderr=None, scale=None, physical=None):
     """Warnings (list of str) about a fit's optimum; see the module docstring for each check.
 
     All arguments are keywords.
@@ -183,6 +186,10 @@ def diagnose(*, labels, values, stderr, lower, upper, residuals, converged, step
         The objective each start reached.
     best : int, default 0
         Index of the best start.
+    physical : array_like (p, 2) of bool, optional
+        Whether each parameter's lower and upper bound is a physical limit
+        (:meth:`~matfit.fitting.Parametrization.physical_bounds`); default: every bound is a
+        range limit.
     scale : array_like, optional
         The measured values in the residuals' space and layout (the loss's target times the
         square root of the weight): the scale of noise proportional to the value. Without it
@@ -222,10 +229,17 @@ def diagnose(*, labels, values, stderr, lower, upper, residuals, converged, step
     span = np.where(np.isfinite(upper), upper - lower, 1.0)
     at_lo = (values - lower) <= BOUND_TOL * span
     at_hi = np.isfinite(upper) & ((upper - values) <= BOUND_TOL * span)
-    for lab, v, lo, hi, a, b in zip(labels, values, lower, upper, at_lo, at_hi):
+    phys = np.zeros((len(labels), 2), bool) if physical is None else np.asarray(physical, bool).reshape(-1, 2)
+    for i, (lab, v, lo, hi, a, b) in enumerate(zip(labels, values, lower, upper, at_lo, at_hi)):
         if a or b:
-            out.append(f"at a bound: {lab} = {v:.6g} is at its {'lower' if a else 'upper'} bound "
-                       f"{lo if a else hi:g}; the best fit lies at or outside the family's range")
+            side = "lower" if a else "upper"
+            if phys[i, 0 if a else 1]:
+                why = ("a physical limit: the data ask for none (or all) of what it scales, so a smaller "
+                       "family may explain them as well")
+            else:
+                why = ("a range limit of the family, not of physics: the best fit may lie beyond it "
+                       "(widen it with compose_family(bounds=...), or read the fit as a boundary fit)")
+            out.append(f"at a bound: {lab} = {v:.6g} is at its {side} bound {lo if a else hi:g}, {why}")
     r_all = np.asarray(residuals)
     keep = r_all != 0
     r = r_all[keep].astype(np.result_type(r_all.dtype, np.float32), copy=False)  # float32 stays float32 (medians of millions)

@@ -156,7 +156,8 @@ def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust
         labels=par.labels, values=values, stderr=se, lower=lower, upper=upper, gram=At, residuals=r_best,
         converged=bool(np.asarray(ok)[best]), steps=int(np.asarray(steps)[best]), max_steps=int(max_steps),
         known_sigma=table.sigma is not None and loss == "l2" and robust is None, dof=n_res - par.size,
-        data_scale=data_scale, best=best, scale=_value_scale(arrays, loss, robust), **start_kw)
+        data_scale=data_scale, best=best, scale=_value_scale(arrays, loss, robust),
+        physical=par.physical_bounds(), **start_kw)
     se = np.where(np.isin(par.labels, unident), np.inf, se)
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(se, se)

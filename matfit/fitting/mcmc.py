@@ -37,6 +37,15 @@ Priors on the model parameters
       parameter; ``mean``/``sd`` may then be per-channel sequences) or single labels such as
       ``"albedo[1]"``. Parameters not named keep the uniform prior.
 
+Moves
+    ``moves="de"`` (default): emcee's differential-evolution move (80 %) with its snooker
+    variant (20 %) (ter Braak 2006; ter Braak & Vrugt 2008): proposals along the difference of
+    two other walkers follow a correlated, stretched posterior (a conductor's ``eta`` and ``k``
+    on an RGB channel trade off along a curved ridge). ``moves="stretch"``: Goodman & Weare's
+    affine-invariant stretch move, emcee's own default. On the demo's gold conductor (34 rows)
+    the DE mixture cuts the largest autocorrelation time about 2.7x and the chain meets its
+    criterion within 20000 steps, where the stretch move does not.
+
 Run length
     The walkers start in a small ball around a least-squares fit (``start``, by default
     :func:`~matfit.fitting.fit` is run first). The burn-in runs in chunks until it is at least
@@ -59,6 +68,9 @@ References
 ----------
 - D. Foreman-Mackey, D. W. Hogg, D. Lang, J. Goodman, "emcee: The MCMC Hammer", PASP 125, 2013.
 - J. Goodman, J. Weare, "Ensemble samplers with affine invariance", CAMCoS 5(1), 2010.
+- C. J. F. ter Braak, "A Markov Chain Monte Carlo version of the genetic algorithm Differential
+  Evolution", Statistics and Computing 16, 2006; C. J. F. ter Braak, J. A. Vrugt, "Differential
+  Evolution Markov Chain with snooker updater and fewer chains", Statistics and Computing 18, 2008.
 """
 
 from __future__ import annotations
@@ -524,6 +536,8 @@ class PosteriorResult:
         The parameters held fixed, as arrays.
     tied : tuple of str, default ()
         The tied per-channel parameters.
+    moves : str, default "stretch"
+        emcee's moves (:data:`MOVES`); files written before the field read as ``"stretch"``.
 
     Examples
     --------
@@ -536,7 +550,7 @@ class PosteriorResult:
     >>> post = sample_posterior(table, model="lambert", start=start, max_steps=200, chunk=50, tau_factor=10,
     ...                         progress=False)
     >>> post.chain.shape, post.samples.shape, post.n_steps, post.thin
-    ((25, 12, 3), (300, 3), 100, 4)
+    ((50, 12, 3), (600, 3), 50, 1)
     >>> bool(np.all((post.ci90[:, 0] < post.median) & (post.median < post.ci90[:, 1])))
     True
     """
@@ -566,6 +580,7 @@ class PosteriorResult:
     noise_floor: float = 0.0
     fixed: dict = field(default_factory=dict)
     tied: tuple = ()
+    moves: str = "stretch"
 
     @property
     def samples(self):
@@ -646,11 +661,11 @@ class PosteriorResult:
         ...                         progress=False)
         >>> lines = post.summary().splitlines()
         >>> lines[0].split(":")[0], lines[1].split()[:2], lines[2].split()[0]
-        ('lambert posterior (l2, noise=table, prior=uniform)', ['parameter', 'median'], 'albedo[0]')
+        ('lambert posterior (l2, noise=table, prior=uniform, moves=de)', ['parameter', 'median'], 'albedo[0]')
         >>> len(lines)
         5
         """
-        lines = [f"{self.family} posterior ({self.loss}, noise={self.noise}, prior={self.prior}): "
+        lines = [f"{self.family} posterior ({self.loss}, noise={self.noise}, prior={self.prior}, moves={self.moves}): "
                  f"{self.n_walkers} walkers, burn-in {self.burn_in}, {self.n_steps} steps (thin {self.thin}), "
                  f"acceptance {np.mean(self.acceptance_fraction):.2f}, converged={self.converged} "
                  f"(tau_factor {self.tau_factor:g}), {self.wall_time:.1f} s",
@@ -665,7 +680,7 @@ class PosteriorResult:
     _ARRAYS = ("chain", "log_prob", "median", "mean", "std", "ci90", "ci68", "acceptance_fraction",
                "autocorr_time", "n_effective")
     _SCALARS = ("family", "loss", "noise", "prior", "burn_in", "n_steps", "thin", "n_walkers", "tau_factor",
-                "converged", "wall_time", "noise_floor", "fixed", "tied")
+                "converged", "wall_time", "noise_floor", "fixed", "tied", "moves")
 
     def save(self, path, **extra) -> None:
         """Write the chains and the summaries to ``path`` (``.npz``, readable without pickle).
@@ -747,7 +762,7 @@ class PosteriorResult:
                 raise ParameterError(f"{path}: not a {NPZ_FORMAT} file (format {meta.get('format')!r})")
             kw = {k: f[k].copy() for k in cls._ARRAYS}
             labels = [str(s) for s in f["labels"]]
-        kw.update({k: meta[k] for k in cls._SCALARS})
+        kw.update({k: meta[k] for k in cls._SCALARS if k in meta})  # "moves" came later: its default
         kw["tied"] = tuple(kw["tied"])
         return cls(labels=labels, **kw)
 
@@ -764,9 +779,18 @@ def _tau(sampler, discard=0):
     return np.where(np.isfinite(tau) & (tau > 0), tau, 1.0)
 
 
+#: emcee's moves by name (see the module docstring): a name -> a function returning the
+#: ``moves`` argument of :class:`emcee.EnsembleSampler`.
+MOVES = {
+    "de": lambda emcee: [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)],
+    "stretch": lambda emcee: emcee.moves.StretchMove(),
+}
+
+
 def sample_posterior(table, model="plastic", fixed=None, tied=(), loss="l2", noise="table", prior="uniform",
                      n_walkers=None, max_steps=20000, tau_factor=50, start=None, seed=0, progress=True,
-                     chunk=200, burn_factor=5, thin=None, noise_floor=None, dtype=None) -> PosteriorResult:
+                     chunk=200, burn_factor=5, thin=None, noise_floor=None, dtype=None,
+                     moves="de") -> PosteriorResult:
     """Sample the posterior of a model family's parameters given a table, with emcee.
 
     Parameters
@@ -818,6 +842,8 @@ def sample_posterior(table, model="plastic", fixed=None, tied=(), loss="l2", noi
         :func:`make_log_prob` for the default).
     dtype : dtype, optional
         JAX float dtype of the computation (default: JAX's default float).
+    moves : {"de", "stretch"}, default "de"
+        emcee's proposal moves (:data:`MOVES`, see the module docstring).
 
     Returns
     -------
@@ -862,6 +888,8 @@ def sample_posterior(table, model="plastic", fixed=None, tied=(), loss="l2", noi
         raise ParameterError(f"sample_posterior: burn_factor must be a number >= 0, got {burn_factor!r}")
     if thin is not None:
         thin = _check_int("thin", thin, 1)
+    if not isinstance(moves, str) or moves not in MOVES:
+        raise ParameterError(f"sample_posterior: moves must be one of {sorted(MOVES)}, got {moves!r}")
     if isinstance(tied, str):
         tied = (tied,)
     lp = make_log_prob(table, model, fixed, tied, loss, noise, prior, noise_floor, None, dtype)
@@ -872,7 +900,7 @@ def sample_posterior(table, model="plastic", fixed=None, tied=(), loss="l2", noi
     n_walkers = _check_int("n_walkers", n_walkers, 2 * d)
     if n_walkers % 2:
         raise ParameterError(f"sample_posterior: n_walkers must be even, got {n_walkers}")
-    lp.block = n_walkers // 2  # emcee's stretch move evaluates half the ensemble at a time
+    lp.block = n_walkers // 2  # emcee's stretch and DE moves evaluate half the ensemble at a time
 
     if start is None:
         start = fit(table, model=model, loss=loss, fixed=fixed, tied=tied, dtype=dtype)
@@ -912,7 +940,7 @@ def sample_posterior(table, model="plastic", fixed=None, tied=(), loss="l2", noi
     if not np.all(np.isfinite(lp0)):
         raise SamplingError(f"sample_posterior: no finite log-probability near the start {start.values}")
 
-    sampler = emcee.EnsembleSampler(n_walkers, d, lp, vectorize=True)
+    sampler = emcee.EnsembleSampler(n_walkers, d, lp, vectorize=True, moves=MOVES[moves](emcee))
     state = emcee.State(p0, log_prob=lp0, random_state=np.random.RandomState(seed).get_state())
 
     # ---- burn-in: at least burn_factor * tau (tau estimated on the second half)
@@ -964,5 +992,5 @@ def sample_posterior(table, model="plastic", fixed=None, tied=(), loss="l2", noi
         n_effective=n_walkers * n_prod / tau, burn_in=burn_in, n_steps=n_prod, thin=int(thin),
         n_walkers=n_walkers, tau_factor=float(tau_factor), converged=converged,
         wall_time=time.perf_counter() - t0, noise_floor=float(lp.noise_floor),
-        fixed={k: np.asarray(v, float) for k, v in (fixed or {}).items()}, tied=tuple(tied),
+        fixed={k: np.asarray(v, float) for k, v in (fixed or {}).items()}, tied=tuple(tied), moves=moves,
     )

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import ParameterError
-from ._compose import MAX_ROWS, Lobe, LobeRefine, LobeSpec, lobe_layout
+from ._compose import MAX_ROWS, METAL_ETA_RANGE, METAL_K_RANGE, Lobe, LobeRefine, LobeSpec, lobe_layout
 from ._conductor_guess import refine_conductor
 from ..models import CoatedConductor, DiffuseSpecular, Lambert, Plastic, RoughConductor, RoughDielectric
 
@@ -43,6 +43,11 @@ class Param:
     generic : float, optional
         The generic mid-range start :func:`~matfit.fitting.robust_fit` tries beside the
         data-driven guess (None: that guess's value).
+    physical : (bool, bool), default (False, False)
+        Whether the lower and the upper bound are physical limits (a weight or albedo of 0 or 1,
+        an extinction of 0: the fit there says the data ask for none or all of the term) rather
+        than range limits chosen for fitting (a width of 1e-3, a metal index of 8: the best fit
+        may lie beyond). A fit's "at a bound" warning says which.
 
     Examples
     --------
@@ -58,6 +63,7 @@ class Param:
     per_channel: bool = False
     doc: str = ""
     generic: Optional[float] = None
+    physical: tuple = (False, False)
 
     def to_unconstrained(self, theta):
         """The unconstrained ``z`` of a value ``theta`` (clipped just inside the range).
@@ -429,7 +435,9 @@ def compose_family(name, lobes, base="lambert", weights="channels", ordered=True
     for s in slots:
         lo, hi = limits[s.name]
         generic = float(np.clip(s.generic, lo + 1e-3 * (hi - lo), hi - 1e-3 * (hi - lo)))
-        every.append(Param(s.name, lo, hi, s.per_channel, s.doc, generic=generic))
+        # bounds a caller set are ranges; the slots' own 0 and 1 of a weight (and k = 0) are physics
+        physical = (False, False) if s.name in (bounds or {}) else _PHYSICAL_SLOTS.get(s.kind, (False, False))
+        every.append(Param(s.name, lo, hi, s.per_channel, s.doc, generic=generic, physical=physical))
     # fixed values and constant starts are checked as a fit checks them (range, finite, channels),
     # on the family of every parameter; a per-channel value sets the channel count it is read with
     given = list((fixed or {}).values()) + list((starts or {}).values())
@@ -458,12 +466,19 @@ def _conductor(distribution):
     return lambda p, C: RoughConductor(p["alpha"], p["eta"], p["k"], distribution=distribution)
 
 
+#: Which bounds of a composed family's slots are physical limits (see :class:`Param`).
+_PHYSICAL_SLOTS = {"albedo": (True, True), "ks": (True, True), "mix": (True, True), "f0": (True, True),
+                   "ratio": (True, False),  # ratio 1: two lobes of one width, one lobe
+                   "k": (True, False)}
+
+
 def _alpha(what, lower=1e-3, upper=1.5, name="alpha", generic=0.2):
     return Param(name, lower, upper, False, what, generic=generic)
 
 
-_METAL = (Param("eta", 0.05, 8.0, True, "real index", generic=1.0), Param("k", 0.0, 12.0, True, "extinction", generic=3.0))
-_ALBEDO = Param("albedo", 0.0, 1.0, True, "diffuse albedo", generic=0.5)
+_METAL = (Param("eta", *METAL_ETA_RANGE, True, "real index", generic=1.0),
+          Param("k", *METAL_K_RANGE, True, "extinction", generic=3.0, physical=(True, False)))
+_ALBEDO = Param("albedo", 0.0, 1.0, True, "diffuse albedo", generic=0.5, physical=(True, True))
 
 FAMILIES: dict[str, Family] = {
     "lambert": Family(
@@ -482,21 +497,21 @@ FAMILIES: dict[str, Family] = {
         starts={"eta": 1.5}, truth=TruthMap("RoughDielectric", {"distribution": (None, "ggx")})),
     "plastic": Family(
         "plastic",
-        (Param("albedo", 0.0, 1.0, True, "base albedo", generic=0.5), _alpha("coat GGX width"),
+        (Param("albedo", 0.0, 1.0, True, "base albedo", generic=0.5, physical=(True, True)), _alpha("coat GGX width"),
          Param("eta", 1.05, 3.0, False, "coat index", generic=1.5)),
         lambda p, C: Plastic(p["albedo"], p["alpha"], p["eta"]), "Lambertian base under a rough coat",
         starts={"eta": 1.5}, truth=TruthMap("Plastic")),
     "car_paint": Family(
         "car_paint",
-        (_alpha("metal GGX width", name="alpha_base"), Param("eta_base", 0.05, 8.0, True, "metal index", generic=1.0),
-         Param("k_base", 0.0, 12.0, True, "metal extinction", generic=3.0),
+        (_alpha("metal GGX width", name="alpha_base"), Param("eta_base", *METAL_ETA_RANGE, True, "metal index", generic=1.0),
+         Param("k_base", *METAL_K_RANGE, True, "metal extinction", generic=3.0, physical=(True, False)),
          _alpha("coat GGX width", upper=1.0, name="alpha_coat", generic=0.1),
          Param("eta_coat", 1.05, 2.5, False, "coat index", generic=1.5)),
         lambda p, C: CoatedConductor(p["alpha_base"], p["eta_base"], p["k_base"], p["alpha_coat"], p["eta_coat"]),
         "rough metal under a rough clear coat", truth=TruthMap("CoatedConductor")),
     "diffuse_specular": Family(
         "diffuse_specular",
-        (_ALBEDO, Param("f0", 0.0, 1.0, True, "specular F0 (Schlick)"), _alpha("GGX width")),
+        (_ALBEDO, Param("f0", 0.0, 1.0, True, "specular F0 (Schlick)", physical=(True, True)), _alpha("GGX width")),
         lambda p, C: DiffuseSpecular(p["albedo"], p["f0"], p["alpha"]),
         "Lambertian albedo plus a GGX lobe with Schlick's Fresnel (the texel model of captures)"),
 }
@@ -751,6 +766,21 @@ class Parametrization:
             lo += [p.lower] * n
             hi += [p.upper] * n
         return np.array(lo), np.array(hi)
+
+    def physical_bounds(self):
+        """Whether each free coordinate's (lower, upper) bound is a physical limit (:class:`Param`).
+
+        Returns
+        -------
+        numpy.ndarray (size, 2) of bool
+
+        Examples
+        --------
+        >>> from matfit.fitting import Parametrization
+        >>> Parametrization("conductor", 1).physical_bounds().tolist()
+        [[False, False], [False, False], [True, False]]
+        """
+        return np.array([p.physical for p, n in zip(self.free, self.sizes) for _ in range(n)], bool).reshape(-1, 2)
 
     def split(self, vec):
         """Cut a flat vector into per-parameter pieces (per-channel pieces keep their axis).
