@@ -130,7 +130,7 @@ def _models_tour(out: Path):
     print(f"wrote {out / 'lobes.png'} and {out / 'albedo.csv'}")
 
 
-def run_fit_demo(out: Path, scene="demo", family="conductor", mcmc_steps=20000, compare=("lambert", "conductor")):
+def run_fit_demo(out: Path, scene="demo", family="conductor", mcmc_steps=30000, compare=("lambert", "conductor")):
     """Synthesize the built-in scene, then run the main job on it (:func:`matfit.pipeline.run_pipeline`).
 
     Parameters
@@ -142,7 +142,7 @@ def run_fit_demo(out: Path, scene="demo", family="conductor", mcmc_steps=20000, 
         A shipped data_synth scene.
     family : str, default "conductor"
         The family fitted.
-    mcmc_steps : int, default 20000
+    mcmc_steps : int, default 30000
         Cap on the posterior's MCMC steps (0: no posterior).
     compare : sequence of str
         Families compared on a hold-out split.
