@@ -25,10 +25,9 @@ test: $(STAMP)
 	$(PY) -m pytest -q -n 2 --dist loadfile tests matfit --doctest-modules
 
 # The quick tier while working (a few minutes): the tests marked `check` (tests/conftest.py
-# CHECK_TIER, one or a few per test file) and the library's doctests, compiled at XLA's default
-# optimization level (`make test` compiles at level 0: tests/conftest.py).
+# CHECK_TIER, one or a few per test file) and the library's doctests.
 check: $(STAMP)
-	MATFIT_TEST_FAST_COMPILE=0 $(PY) -m pytest -q -n 2 --dist loadfile -m check tests matfit --doctest-modules
+	$(PY) -m pytest -q -n 2 --dist loadfile -m check tests matfit --doctest-modules
 
 bench: $(STAMP)
 	$(PY) benchmarks/run_all.py

@@ -3,18 +3,9 @@ import sys
 import zlib
 from pathlib import Path
 
-# XLA's compilation, not the computation, is most of this suite's time: `make test` compiles at
-# LLVM optimization level 0 (12-17 % less wall time measured on tests/test_hard_cases.py,
-# test_maps.py and test_choose.py; the same results). `make check` keeps XLA's default level
-# (MATFIT_TEST_FAST_COMPILE=0), so both builds are exercised. Set before JAX starts its backend;
-# the xdist workers and the tests' subprocesses inherit it.
-if os.environ.get("MATFIT_TEST_FAST_COMPILE", "1") != "0" and "xla_backend_optimization_level" not in os.environ.get(
-        "XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_backend_optimization_level=0").strip()
-
-import jax  # noqa: E402
-import numpy as np  # noqa: E402
-import pytest  # noqa: E402
+import jax
+import numpy as np
+import pytest
 
 # The repository root holds numpy_ref (the numpy references shared with the benchmarks, not part of
 # the library): importable however pytest was started, in xdist workers too.
