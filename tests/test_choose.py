@@ -33,6 +33,21 @@ def _table(model, n=1500, seed=0):
     return Table(wo=wo, wi=wi, values=np.broadcast_to(y, (2 * n, 3)).copy())
 
 
+def test_grazing_excess_names_sheen_only_where_the_backward_rows_show_it():
+    """paper_white and colodur's grazing excess lies in forward rows only (the RGL tables hold no
+    backward grazing rows there): the missing effect must not be called a sheen lobe."""
+    from matfit.fitting._choose import _missing
+
+    line = 1.5  # CUE_LINES["grazing_excess"]
+    both = _missing({"grazing_excess": True, "grazing_ratio": 3.0, "grazing_back_ratio": 2 * line})
+    forward = _missing({"grazing_excess": True, "grazing_ratio": 3.0, "grazing_back_ratio": 0.5})
+    unknown = _missing({"grazing_excess": True, "grazing_ratio": 3.0, "grazing_back_ratio": float("nan")})
+    assert "sheen lobe)" in both[0] and "backward as well" in both[0]
+    assert "not a sheen lobe" in forward[0] and "forward grazing angles only" in forward[0]
+    assert "no backward grazing rows" in unknown[0]
+    assert _missing({"grazing_excess": False}) == []
+
+
 def test_cues_see_what_the_material_shows():
     grey = appearance_cues(_table(Plastic(0.5, 0.1, 1.5)))
     assert not grey["coloured_highlight"] and not grey["colour_shift"] and not grey["second_lobe"]

@@ -10,7 +10,8 @@ r"""Which family: cheap cues of the data pick the candidates, the rendered image
    is above 2); a colour change with angle (the spread of that excess's chromaticity over the
    bands :math:`\theta_d` 0-20-40-60-90°); an
    excess at grazing angles (off-mirror rows with both angles past 70° over the floor, where the
-   floor is diffuse: specular ratio below 10); a second
+   floor is diffuse: specular ratio below 10; read a sheen lobe only where the backward rows,
+   both directions on one side, show it too); a second
    lobe (the RMS, in log, of the peak's excess over the floor about the best single GGX shape in
    :math:`\theta_h`); an azimuthal dependence (the spread of log values over the half
    vector's azimuth in cells of :math:`\theta_h, \theta_d`, about a plane in those angles).
@@ -117,7 +118,8 @@ def appearance_cues(table):
     -------
     dict
         Each cue's value (``specular_ratio``, ``highlight_saturation``, ``colour_spread``,
-        ``grazing_ratio``, ``lobe_misfit``, ``azimuthal_spread``; NaN where the table has too
+        ``grazing_ratio``, ``grazing_back_ratio`` (the same over the backward grazing rows only),
+        ``lobe_misfit``, ``azimuthal_spread``; NaN where the table has too
         few rows for it) and the booleans ``second_lobe``, ``coloured_highlight``,
         ``colour_shift``, ``grazing_excess``, ``azimuthal``, ``dark_floor``.
 
@@ -145,8 +147,8 @@ def appearance_cues(table):
     if off.sum() < 3 and ok.sum() >= 30:
         off = ok & (th_h >= np.percentile(th_h[ok], 90))
     nan = float("nan")
-    c = {k: nan for k in ("specular_ratio", "highlight_saturation", "colour_spread", "grazing_ratio", "lobe_misfit",
-                          "azimuthal_spread")}
+    c = {k: nan for k in ("specular_ratio", "highlight_saturation", "colour_spread", "grazing_ratio",
+                          "grazing_back_ratio", "lobe_misfit", "azimuthal_spread")}
     # the floor: the lower decile of the in-range rows off the mirror (a diffuse level, ~0 for a metal)
     floor = float(np.percentile(lum[off], 10)) if off.sum() >= 3 else nan
     if near.sum() >= 3 and off.sum() >= 3:
@@ -174,6 +176,12 @@ def appearance_cues(table):
     graz = ok & (th_i > 70) & (th_o > 70) & (th_h > 30)
     if graz.sum() >= 3 and np.isfinite(floor) and not c["specular_ratio"] >= 10:  # a diffuse floor
         c["grazing_ratio"] = float(np.median(lum[graz]) / max(floor, 1e-12))
+        # backward: the two directions on the same side of the normal (a sheen lobe lifts these
+        # too; a grazing Fresnel rise or a wide forward lobe lifts only the forward ones)
+        wo, wi = np.asarray(table.wo, float), np.asarray(table.wi, float)
+        back = graz & (wo[:, 0] * wi[:, 0] + wo[:, 1] * wi[:, 1] > 0)
+        if back.sum() >= 3:
+            c["grazing_back_ratio"] = float(np.median(lum[back]) / max(floor, 1e-12))
     # azimuthal dependence: in (th_h, th_d) cells, the spread of log values about a plane in
     # (th_h, th_d) (the lobe's own slope removed) over rows of different half-vector azimuth
     spreads = []
@@ -228,8 +236,26 @@ def candidates_for(cues):
 
 #: What a cue says no registered family carries.
 _MISSING = {"colour_shift": "a highlight whose hue turns with angle (thin-film interference, a tinted layer)",
-            "grazing_excess": "an excess at grazing angles (a sheen lobe)",
+            "grazing_excess": "an excess at grazing angles, backward as well as forward (a sheen lobe)",
             "azimuthal": "an azimuthal dependence (anisotropy)"}
+#: The grazing excess when the backward grazing rows show none, or the table holds none.
+_FORWARD_GRAZING = {
+    "none": "an excess at forward grazing angles only (a grazing Fresnel rise or a wide forward lobe; no backward "
+            "excess, so not a sheen lobe)",
+    "unknown": "an excess at forward grazing angles (a grazing Fresnel rise, a wide forward lobe or a sheen lobe: "
+               "the table holds no backward grazing rows to tell them apart)"}
+
+
+def _missing(cues):
+    """What the cues see that no registered family carries (one phrase each)."""
+    out = []
+    for k, text in _MISSING.items():
+        if not cues.get(k):
+            continue
+        if k == "grazing_excess" and not cues.get("grazing_back_ratio", np.nan) > CUE_LINES["grazing_excess"]:
+            text = _FORWARD_GRAZING["none" if np.isfinite(cues.get("grazing_back_ratio", np.nan)) else "unknown"]
+        out.append(text)
+    return out
 
 
 @dataclass
@@ -370,7 +396,7 @@ def choose_family(table, reference="auto", candidates=None, loss=None, log=None,
     unknown = [f for f in why if f not in FAMILIES]
     if unknown or not why:
         raise ParameterError(f"choose_family: unknown families {unknown}; expected some of {sorted(FAMILIES)}")
-    missing = [_MISSING[k] for k in _MISSING if cues.get(k)]
+    missing = _missing(cues)
     ref = measured_model(table) if isinstance(reference, str) and reference == "auto" else reference
     C = table.n_channels
     if C not in (1, 3):
