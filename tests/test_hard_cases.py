@@ -373,13 +373,9 @@ SMOOTH_TOL = 1e-3
 PLASTIC_TABLE_TOL = 1e-2
 
 
+@functools.partial(jax.jit, static_argnames="n")  # one program per model type, not one per primitive
 def _reflected_fraction(model, wo, n=4096):
     """Mean importance-sampling weight of the samples reflected to the upper side (per channel)."""
-    return _reflected_fraction_jit(model, wo, n)
-
-
-@functools.partial(jax.jit, static_argnums=2)  # one program per model type, not one per primitive
-def _reflected_fraction_jit(model, wo, n):
     u = jax.random.uniform(jax.random.PRNGKey(1), (n, 3), wo.dtype)
 
     def one(w):

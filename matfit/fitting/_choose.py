@@ -252,8 +252,9 @@ def _missing(cues):
     for k, text in _MISSING.items():
         if not cues.get(k):
             continue
-        if k == "grazing_excess" and not cues.get("grazing_back_ratio", np.nan) > CUE_LINES["grazing_excess"]:
-            text = _FORWARD_GRAZING["none" if np.isfinite(cues.get("grazing_back_ratio", np.nan)) else "unknown"]
+        back = cues.get("grazing_back_ratio", np.nan)
+        if k == "grazing_excess" and not back > CUE_LINES["grazing_excess"]:
+            text = _FORWARD_GRAZING["none" if np.isfinite(back) else "unknown"]
         out.append(text)
     return out
 

@@ -57,12 +57,12 @@ def _standardized(r, scale, data_scale):
     """``(|z|, kind)``: the residuals over a robust noise scale, additive or proportional to
     ``scale``, whichever leaves the lighter tail beyond 3 (None when the spread is rounding)."""
     best = None
-    models = [("additive", np.ones_like(r))]
+    models = [("additive", None)]  # the residuals as they are: no array of ones to divide by
     if scale is not None:
         floor = 1e-3 * max(float(_median_of_copy(scale)), 1e-300)  # a zero value keeps a finite scale
         models.append(("proportional", scale.astype(r.dtype, copy=False) + floor))
     for kind, s in models:
-        x = r / s
+        x = r if s is None else r / s
         dev = np.abs(x - _median_of_copy(x))
         mad = 1.4826 * _median_of_copy(dev)
         if kind == "additive" and not (mad > 1e-7 * data_scale and mad > 0):

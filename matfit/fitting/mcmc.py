@@ -762,7 +762,8 @@ class PosteriorResult:
                 raise ParameterError(f"{path}: not a {NPZ_FORMAT} file (format {meta.get('format')!r})")
             kw = {k: f[k].copy() for k in cls._ARRAYS}
             labels = [str(s) for s in f["labels"]]
-        kw.update({k: meta[k] for k in cls._SCALARS if k in meta})  # "moves" came later: its default
+        kw.update({k: meta[k] for k in cls._SCALARS if k != "moves"})
+        kw["moves"] = meta.get("moves", "stretch")  # files written before the field: emcee's stretch move
         kw["tied"] = tuple(kw["tied"])
         return cls(labels=labels, **kw)
 
