@@ -31,7 +31,8 @@ from .baselines import (ALPHA_MIN, COS_EPS, FAMILY_MODELS, FamilyModel, coat_tra
 from .compare import assert_rel, input_sensitivity, rel_err
 from .directions import generalized_half_vector, random_directions, random_normals_near_z
 from .fresnel import (fresnel_complex, fresnel_conductor, fresnel_conductor_real, fresnel_dielectric,
-                      fresnel_dielectric_average, fresnel_dielectric_real, fresnel_schlick)
+                      fresnel_dielectric_average, fresnel_dielectric_real, fresnel_schlick, thin_film_rgb,
+                      thin_film_spectrum)
 from .microfacet import Dist, GGXCartesian
 from .models import (coated_conductor_smooth_eval, conductor_eval, conductor_pdf, dielectric_eval, dielectric_pdf,
                      diffuse_probability, diffuse_specular_eval, diffuse_specular_pdf, lambert_eval, lambert_pdf,

@@ -21,6 +21,8 @@ __all__ = [
     "fresnel_dielectric_real",
     "fresnel_schlick",
     "fresnel_dielectric_average",
+    "thin_film_spectrum",
+    "thin_film_rgb",
 ]
 
 
@@ -111,3 +113,45 @@ def fresnel_dielectric_average(eta):
     val, _ = integrate.quad(lambda mu: 2.0 * mu * float(fresnel_dielectric(mu, eta)), 0.0, 1.0, points=pts,
                             epsabs=1e-13, epsrel=1e-12, limit=200)
     return val
+
+
+def thin_film_spectrum(cos_i, d, n_film, n_base, lam):
+    """Reflectance spectrum of one film (thickness ``d`` nm, index ``n_film``) on a base
+    (``n_base``, may be complex) from outside (index 1), by the characteristic matrix of the
+    layer (Born & Wolf 1.6.2), not by the Airy sum: per polarization the tilted admittances
+    ``y_j = n_j cos_j`` (s) or ``n_j / cos_j`` (p), the layer's matrix
+    ``[[cos b, i sin b / y1], [i y1 sin b, cos b]]`` with ``b = 2 pi n1 d cos_1 / lam``,
+    ``(B, C) = M (1, y2)`` and ``r = (y0 B - C) / (y0 B + C)``. Returns ``(..., L)``."""
+    c0 = np.clip(np.abs(f64(cos_i)), 1e-7, 1.0)[..., None].astype(np.complex128)
+    n1 = np.asarray(n_film, np.complex128)[..., None]
+    n2 = np.asarray(n_base, np.complex128)[..., None]
+    d = f64(d)[..., None]
+    lam = f64(lam)
+    s2 = 1.0 - c0 * c0
+    c1 = np.sqrt(1.0 - s2 / (n1 * n1))
+    c2 = np.sqrt(1.0 - s2 / (n2 * n2))
+    b = 2 * np.pi * n1 * d * c1 / lam
+    out = 0.0
+    for y0, y1, y2 in ((c0, n1 * c1, n2 * c2), (1.0 / c0, n1 / c1, n2 / c2)):
+        B = np.cos(b) + 1j * np.sin(b) / y1 * y2
+        C = 1j * y1 * np.sin(b) + np.cos(b) * y2
+        r = (y0 * B - C) / (y0 * B + C)
+        out = out + 0.5 * np.abs(r) ** 2
+    return out
+
+
+def thin_film_rgb(cos_i, d, n_film, n_base):
+    """``thin_film_spectrum`` at 380-780 nm every 5 nm in linear sRGB: the CIE 1931 2-degree
+    observer and D65 read from ``colour``'s tables (linear interpolation), XYZ -> sRGB by the
+    IEC 61966-2-1 matrix written here, each channel's weights normalized to sum to 1."""
+    import colour
+
+    lam = np.arange(380.0, 781.0, 5.0)
+    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
+    d65 = colour.SDS_ILLUMINANTS["D65"]
+    xyz = np.stack([np.interp(lam, cmfs.wavelengths, cmfs.values[:, i]) for i in range(3)], -1)
+    xyz = xyz * np.interp(lam, d65.wavelengths, d65.values)[:, None]
+    m = np.array([[3.2406, -1.5372, -0.4986], [-0.9689, 1.8758, 0.0415], [0.0557, -0.2040, 1.0570]])
+    w = xyz @ m.T
+    w = w / w.sum(axis=0)
+    return np.clip(thin_film_spectrum(cos_i, d, n_film, n_base, lam) @ w, 0.0, 1.0)

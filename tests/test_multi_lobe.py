@@ -2,7 +2,7 @@
 
     f(wo, wi) = albedo / pi + sum_j w_j F_j(wo.h) D_j(h) G2_j(wo, wi, h) / (4 cos_o cos_i),
 
-F_j Schlick (f0), exact dielectric (eta) or exact conductor (eta + i k); sampled by one-sample MIS
+F_j Schlick (f0), exact dielectric (eta), exact conductor (eta + i k) or a thin film; sampled by one-sample MIS
 over the cosine hemisphere and the lobes, with probabilities proportional to mean(albedo) and to
 mean(w_j (F_j(1) + (1 - F_j(1)) / 21)).
 
@@ -69,6 +69,11 @@ LOBE_CASES = {
         ("ggx", 0.1, 0.3, "schlick", 0.5, {"f0": (0.04, 0.5, 0.9)}, "height_correlated"),
         ("ggx", 0.5, None, "conductor", 0.4, {"eta": C.CU_ETA, "k": C.CU_K}, "height_correlated"),
     ]),
+    # a clear coat over an iridescent lobe: a 350 nm film of index 1.8 on glass
+    "film": ((0.1, 0.05, 0.2), [
+        ("ggx", 0.05, None, "dielectric", 1.0, {"eta": 1.5}, "separable"),
+        ("beckmann", 0.3, 0.15, "thin_film", 0.8, {"thickness": 350.0, "film_eta": 1.8, "eta": 1.4}, "height_correlated"),
+    ]),
     "metal-two-scales": (0.0, [
         ("ggx", 0.05, None, "conductor", 0.7, {"eta": C.GOLD_ETA, "k": C.GOLD_K}, "separable"),
         ("beckmann", 0.4, None, "conductor", 0.3, {"eta": C.GOLD_ETA, "k": C.GOLD_K}, "separable"),
@@ -91,12 +96,16 @@ def ref_fresnel(cos, fres, fp):
         return R.fresnel_schlick(cos[..., None], np.atleast_1d(fp["f0"]))
     if fres == "dielectric":
         return R.fresnel_dielectric(cos[..., None], np.atleast_1d(fp["eta"]))
+    if fres == "thin_film":
+        return R.thin_film_rgb(cos, fp["thickness"], fp["film_eta"], fp["eta"])
     return R.fresnel_conductor(cos[..., None], np.atleast_1d(fp["eta"]), np.atleast_1d(fp["k"]))
 
 
 def ref_normal_reflectance(fres, fp):
     if fres == "schlick":
         return np.atleast_1d(fp["f0"])
+    if fres == "thin_film":
+        return R.thin_film_rgb(1.0, fp["thickness"], fp["film_eta"], fp["eta"])
     return R.fresnel_complex(1.0, np.atleast_1d(fp["eta"]) + 1j * np.atleast_1d(fp.get("k", 0.0)))
 
 
@@ -245,7 +254,8 @@ class LobesCase(S.Case):
 
 SAMPLE_CASES = [LobesCase("conductor", "slope", alpha=0.08, deg=45.0, name="three-kinds"),
                 LobesCase("conductor", "slope", alpha=0.1, alpha_y=0.3, deg=72.5, phi=0.7, name="aniso-hc"),
-                LobesCase("conductor", "slope", alpha=0.05, deg=25.0, name="metal-two-scales")]
+                LobesCase("conductor", "slope", alpha=0.05, deg=25.0, name="metal-two-scales"),
+                LobesCase("conductor", "slope", alpha=0.05, deg=60.0, name="film")]
 
 
 @pytest.mark.parametrize("case", SAMPLE_CASES, ids=[c.id for c in SAMPLE_CASES])

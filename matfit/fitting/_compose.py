@@ -20,6 +20,8 @@ Parameter names (lobes numbered from 1; a parameter shared by the lobes has no s
 ``f0_j``       a Schlick lobe's normal-incidence reflectance
 ``eta_j``      a dielectric lobe's index, or a conductor lobe's real index (per channel)
 ``k_j``        a conductor lobe's extinction, per channel
+``thickness_j``  a thin-film lobe's film thickness (nm)
+``film_eta_j``   a thin-film lobe's film index (its ``eta_j`` is the index under the film)
 =============  ===========================================================================
 """
 
@@ -34,10 +36,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import ParameterError
-from ..fresnel import fresnel_dielectric
+from ..fresnel import FILM_ETA_RANGE, FILM_THICKNESS_RANGE, fresnel_dielectric, fresnel_thin_film
 from ..microfacet import DISTRIBUTIONS, MASKING_FORMS
 from ..models import MultiLobe, SoAPairs, SpecularLobe
-from ..models.multi_lobe import FRESNEL_KINDS
+from ..models.multi_lobe import FRESNEL_KINDS, FRESNEL_PARAMS
+from ._film_guess import film_candidates
 
 __all__ = ["Lobe", "Slot", "LobeSpec", "LobeRefine", "lobe_layout", "WEIGHT_MODES", "SHAREABLE", "METAL_ETA_RANGE",
            "METAL_K_RANGE"]
@@ -45,7 +48,7 @@ __all__ = ["Lobe", "Slot", "LobeSpec", "LobeRefine", "lobe_layout", "WEIGHT_MODE
 #: How the lobes are weighted: a per-channel weight each, a mixture (weights summing to 1), or 1.
 WEIGHT_MODES = ("channels", "mixture", "none")
 #: The Fresnel parameters that lobes may share (one parameter for every lobe that has it).
-SHAREABLE = ("f0", "eta", "k")
+SHAREABLE = ("f0", "eta", "k", "thickness", "film_eta")
 #: Widths of lobes 1, 2, 3, ... at the generic start: narrow, medium, wide (factor 4 apart).
 GENERIC_ALPHA, GENERIC_RATIO = 0.05, 4.0
 #: The ranges a fitted metal's real index and extinction take: range limits of the fit (a
@@ -58,6 +61,8 @@ RATIO_BOUNDS = (1.0, 100.0)
 WIDTH_FACTORS, WIDTH_RATIOS = (0.4, 0.7, 1.0, 1.5, 2.5, 4.0), (3.0, 6.0, 12.0)
 #: The data-driven start's candidate Schlick F0.
 F0_CANDIDATES = (0.04, 0.25, 0.9)
+#: How many candidate films (:func:`film_candidates`) a thin-film lobe's start tries.
+FILM_CANDIDATES = 3
 #: Rows a single large table's start is read from (a fixed random subset).
 MAX_ROWS = 4096
 
@@ -70,7 +75,7 @@ class Lobe:
     ----------
     distribution : {"ggx", "beckmann", "blinn_phong"}, default "ggx"
         The microfacet distribution.
-    fresnel : {"schlick", "dielectric", "conductor"}, default "schlick"
+    fresnel : {"schlick", "dielectric", "conductor", "thin_film"}, default "schlick"
         The lobe's Fresnel term (:class:`~matfit.models.SpecularLobe`).
     masking : {"separable", "height_correlated"}, default "separable"
         Smith masking form.
@@ -100,8 +105,9 @@ class Lobe:
 
     @property
     def fresnel_params(self) -> tuple:
-        """The Fresnel parameters of the lobe: ``("f0",)``, ``("eta",)`` or ``("eta", "k")``."""
-        return {"schlick": ("f0",), "dielectric": ("eta",), "conductor": ("eta", "k")}[self.fresnel]
+        """The Fresnel parameters of the lobe: ``("f0",)``, ``("eta",)``, ``("eta", "k")`` or
+        ``("thickness", "film_eta", "eta")``."""
+        return FRESNEL_PARAMS[self.fresnel]
 
 
 @dataclass(frozen=True)
@@ -147,6 +153,12 @@ def _fresnel_slot(kind, lobe, fresnel, per_channel, name, lobes):
         return Slot(name, kind, lobes, 0.0, 1.0, per_channel, "Schlick F0 (normal-incidence reflectance)", 0.04)
     if kind == "eta" and fresnel == "dielectric":
         return Slot(name, kind, lobes, 1.01, 4.0, per_channel, "dielectric index", 1.5)
+    if kind == "eta" and fresnel == "thin_film":
+        return Slot(name, kind, lobes, 1.01, 3.0, per_channel, "index under the film", 1.5)
+    if kind == "thickness":
+        return Slot(name, kind, lobes, *FILM_THICKNESS_RANGE, per_channel, "film thickness (nm)", 300.0)
+    if kind == "film_eta":
+        return Slot(name, kind, lobes, *FILM_ETA_RANGE, per_channel, "film index", 1.8)
     if kind == "eta":
         return Slot(name, kind, lobes, *METAL_ETA_RANGE, per_channel, "conductor real index", 1.0)
     return Slot(name, kind, lobes, *METAL_K_RANGE, per_channel, "conductor extinction", 3.0)
@@ -223,7 +235,8 @@ def lobe_layout(base, lobes, weights, ordered, share, tied):
             slots.append(Slot(f"mix_{i}", "mix", (j,), 0.0, 1.0, False, f"lobe {i}'s share of lobes 1..{i}", 0.3))
         for kind in lb.fresnel_params:
             # the weight carries a Schlick lobe's colour when there is one (Löw's k_s): F0 is one value then
-            per_channel = {"f0": weights != "channels", "eta": lb.fresnel == "conductor", "k": True}[kind]
+            per_channel = {"f0": weights != "channels", "eta": lb.fresnel == "conductor", "k": True,
+                           "thickness": False, "film_eta": False}[kind]
             if kind in share:
                 if kind in done:
                     continue
@@ -464,9 +477,10 @@ class LobeSpec:
         width_sets = self._width_candidates(alpha0, fixed)
         # D G2 / (4 cos cos) of every lobe at every candidate width: (G, B, N) per lobe
         dgs = [self._microfacet_factor(WO, WI, np.stack([ws[j] for ws in width_sets]), j) for j in range(K)]
+        film_levels = self._film_candidates(WO, WI, V, ok, cos_d, fixed)
         for g, width_set in enumerate(width_sets):
             dg = [d[g] for d in dgs]
-            for level in self._fresnel_candidates(fixed):
+            for level in self._fresnel_candidates(fixed, film_levels):
                 cols = [] if diffuse_known is not None else [np.broadcast_to(np.where(ok, 1 / np.pi, 0.0)[..., None],
                                                                              (B, N, C))]
                 cols += [dg[j][..., None] * self._fresnel_basis(j, level, cos_d, C) for j in range(K)]
@@ -477,7 +491,9 @@ class LobeSpec:
         pick = np.argmin(np.stack(ress, axis=1), axis=1)  # the best candidate per table
         x = np.stack(xs, axis=1)[np.arange(B), pick]  # (B, C, P)
         width_set = [np.array([cands[g][0][j][b] for b, g in enumerate(pick)]) for j in range(K)]
-        level = {n: np.array([float(cands[g][1][n]) for g in pick]) for n in cands[0][1]}
+        # a candidate level is one value for every table (F0) or one per table (a film's)
+        level = {n: np.array([float(np.broadcast_to(cands[g][1][n], (B,))[b]) for b, g in enumerate(pick)])
+                 for n in cands[0][1]}
         off = 0 if diffuse_known is not None else 1
         amps = [x[..., off + j] for j in range(K)]  # (B, C) each
         out = {}
@@ -538,13 +554,32 @@ class LobeSpec:
                 out.append(ws)
         return out
 
-    def _fresnel_candidates(self, fixed):
-        """Candidate Fresnel levels: dicts ``{parameter name: value}``, one per candidate."""
+    def _film_candidates(self, WO, WI, V, ok, cos_d, fixed):
+        """The thin-film lobes' candidate films (:func:`film_candidates`): a list of dicts
+        ``{parameter name: (B,)}``, or ``[{}]`` without a thin-film lobe (or with its film fixed)."""
+        films = [j for j, lb in enumerate(self.lobes) if lb.fresnel == "thin_film"]
+        if not films or V.shape[-1] != 3:
+            return [{}]
+        h = WO + WI
+        th_h = np.degrees(np.arccos(np.clip(h[..., 2] / np.maximum(np.linalg.norm(h, axis=-1), 1e-12), -1, 1)))
+        out = []
+        for c in film_candidates(th_h, cos_d, V, ok, n=FILM_CANDIDATES):
+            level = {}
+            for j in films:
+                names = self.lobe_names(j)
+                for kind in ("thickness", "film_eta"):
+                    if names[kind] not in fixed:
+                        level[names[kind]] = c[kind]
+            out.append(level)
+        return out
+
+    def _fresnel_candidates(self, fixed, films=({},)):
+        """Candidate Fresnel levels: dicts ``{parameter name: value}``, one per candidate (Schlick
+        F0 levels crossed with the candidate films ``films``)."""
         f0_names = sorted({self.lobe_names(j)["f0"] for j, lb in enumerate(self.lobes) if lb.fresnel == "schlick"})
         free_f0 = [n for n in f0_names if n not in fixed]
-        if not free_f0:
-            return [{}]
-        return [{n: np.asarray(v) for n in free_f0} for v in F0_CANDIDATES]
+        f0s = [{n: np.asarray(v) for n in free_f0} for v in F0_CANDIDATES] if free_f0 else [{}]
+        return [{**a, **b} for a in f0s for b in films]
 
     def _fresnel_basis(self, j, level, cos_d, C):
         """Lobe ``j``'s Fresnel factor of the basis, ``(B, N, C)``: Schlick's of the candidate (or
@@ -559,6 +594,15 @@ class LobeSpec:
         elif lb.fresnel == "dielectric":
             eta = np.asarray(fixed.get(names["eta"], 1.5), float)
             F = np.asarray(fresnel_dielectric(jnp.asarray(cos_d[..., None]), jnp.asarray(eta)), float)
+        elif lb.fresnel == "thin_film":
+            B = cos_d.shape[0]
+
+            def per_table(kind, default):
+                v = level[names[kind]] if names[kind] in level else fixed.get(names[kind], default)
+                return np.broadcast_to(np.asarray(v, float), (B,))[:, None]
+
+            F = np.asarray(_film_rgb(jnp.asarray(cos_d), jnp.asarray(per_table("thickness", 300.0)),
+                                     jnp.asarray(per_table("film_eta", 1.8)), jnp.asarray(per_table("eta", 1.5))), float)
         else:
             F = np.ones(cos_d.shape + (1,))
         return np.broadcast_to(F, cos_d.shape + (C,))
@@ -568,7 +612,8 @@ class LobeSpec:
         fixed = dict(self.fixed)
         K = len(self.lobes)
         total = sum(amps)  # (B, C)
-        out = {"ks": [None] * K, "f0": [None] * K, "eta": [None] * K, "k": [None] * K}
+        out = {"ks": [None] * K, "f0": [None] * K, "eta": [None] * K, "k": [None] * K, "thickness": [None] * K,
+               "film_eta": [None] * K}
         for j, lb in enumerate(self.lobes):
             names = self.lobe_names(j)
             a = amps[j]
@@ -580,6 +625,12 @@ class LobeSpec:
                 f0 = np.broadcast_to(f0.reshape((B, -1)) if f0.ndim else f0, (B, C))
                 out["f0"][j] = f0 if scale is None else np.clip(scale * f0, 0.005, 0.99)
                 out["ks"][j] = a
+            elif lb.fresnel == "thin_film":
+                # the film of the candidate; its level is the weight's (the film is not scaled)
+                for kind, default in (("thickness", 300.0), ("film_eta", 1.8), ("eta", 1.5)):
+                    v = level.get(names[kind], fixed.get(names[kind], default))
+                    out[kind][j] = np.broadcast_to(np.asarray(v, float).reshape((-1, 1)), (B, C))
+                out["ks"][j] = a if scale is None else np.clip(a / np.maximum(scale, 1e-12), 0.0, 1.0)
             elif lb.fresnel == "dielectric":
                 eta = float(np.mean(fixed.get(names["eta"], 1.5)))
                 r0 = ((eta - 1) / (eta + 1)) ** 2
@@ -602,6 +653,9 @@ class LobeSpec:
                                        jnp.asarray(WI[None]), lb.distribution, lb.masking), float)
                for g in range(0, G, step)]
         return np.concatenate(out)
+
+
+_film_rgb = jax.jit(fresnel_thin_film)
 
 
 @functools.partial(jax.jit, static_argnums=(3, 4))

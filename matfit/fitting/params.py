@@ -469,7 +469,9 @@ def _conductor(distribution):
 #: Which bounds of a composed family's slots are physical limits (see :class:`Param`).
 _PHYSICAL_SLOTS = {"albedo": (True, True), "ks": (True, True), "mix": (True, True), "f0": (True, True),
                    "ratio": (True, False),  # ratio 1: two lobes of one width, one lobe
-                   "k": (True, False)}
+                   "k": (True, False),
+                   # no film: a thickness of 0 or a film index of 1 (the film is the outside)
+                   "thickness": (True, False), "film_eta": (True, False)}
 
 
 def _alpha(what, lower=1e-3, upper=1.5, name="alpha", generic=0.2):

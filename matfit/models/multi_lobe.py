@@ -15,6 +15,10 @@ distribution (GGX, Beckmann, normalized Blinn-Phong), width, masking form and Fr
 - ``"schlick"``: :math:`F = F_0 + (1 - F_0)(1 - c)^5`, :math:`F_0` per channel;
 - ``"dielectric"``: the exact dielectric Fresnel of a relative index :math:`\eta`;
 - ``"conductor"``: the exact conductor Fresnel of a complex index :math:`\eta + ik` per channel;
+- ``"thin_film"``: the RGB reflectance of a thin film of thickness :math:`d` (nm) and index
+  :math:`\eta_f` on a dielectric of index :math:`\eta` (:func:`~matfit.fresnel.fresnel_thin_film`:
+  the Airy sum per wavelength, integrated to linear sRGB): a highlight whose hue turns with the
+  angle (iridescence; three channels);
 
 and a per-channel weight :math:`w_j` (the ``k_s`` of Cook-Torrance fits, Löw et al. 2012, Ngan
 et al. 2005: ``w_j = k_s`` with a Schlick or dielectric Fresnel gives a coloured or white
@@ -46,10 +50,11 @@ from typing import Optional
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 
 from .._math import COS_EPS, cosine_hemisphere, normalize, safe_div
 from ..errors import ParameterError
-from ..fresnel import fresnel_conductor, fresnel_dielectric, fresnel_schlick
+from ..fresnel import fresnel_conductor, fresnel_dielectric, fresnel_schlick, fresnel_thin_film
 from ._base import AbstractBSDF
 from ._microfacet import AbstractMicrofacetBSDF
 from ._pairs import SoAPairs
@@ -60,7 +65,10 @@ from .lambert import cosine_pdf
 __all__ = ["SpecularLobe", "MultiLobe", "FRESNEL_KINDS"]
 
 #: The Fresnel terms a :class:`SpecularLobe` takes.
-FRESNEL_KINDS = ("schlick", "dielectric", "conductor")
+FRESNEL_KINDS = ("schlick", "dielectric", "conductor", "thin_film")
+#: The parameters each Fresnel term takes.
+FRESNEL_PARAMS = {"schlick": ("f0",), "dielectric": ("eta",), "conductor": ("eta", "k"),
+                  "thin_film": ("thickness", "film_eta", "eta")}
 
 #: Cosine-weighted hemispherical average of Schlick's (1 - c)^5: 2 int_0^1 (1 - c)^5 c dc = 1/21.
 _SCHLICK_AVERAGE = 1.0 / 21.0
@@ -79,20 +87,26 @@ class SpecularLobe(AbstractMicrofacetBSDF):
         The lobe's own GGX, Beckmann or Blinn-Phong alpha (along x when ``alpha_y`` is given).
     alpha_y : array_like or None, scalar or (...), default None; >= 0 or None; differentiable
         The lobe's alpha along y (anisotropic), or None for an isotropic lobe.
-    fresnel : {"schlick", "dielectric", "conductor"}, default "schlick"; static, not differentiable
-        The Fresnel term: Schlick's curve of ``f0``, the exact dielectric Fresnel of ``eta``, or
-        the exact conductor Fresnel of ``eta + i k``.
+    fresnel : {"schlick", "dielectric", "conductor", "thin_film"}, default "schlick"; static, not differentiable
+        The Fresnel term: Schlick's curve of ``f0``, the exact dielectric Fresnel of ``eta``, 
+        the exact conductor Fresnel of ``eta + i k``, or a thin film of ``thickness`` and
+        ``film_eta`` on a dielectric of index ``eta``.
     weight : array_like, scalar or (..., C), default 1.0; >= 0; differentiable
         The lobe's weight :math:`w` per colour channel (a Cook-Torrance ``k_s``).
     f0 : array_like or None, scalar or (..., C), default None; [0, 1] or None; differentiable
         Normal-incidence reflectance :math:`F_0` of a Schlick lobe, per channel (None: 0.04);
         only for ``fresnel="schlick"``.
     eta : array_like or None, scalar or (..., C), default None; > 0 or None; differentiable
-        Relative index of a dielectric lobe (None: 1.5), or real part of a conductor's complex
-        index (required), per channel; not for ``fresnel="schlick"``.
+        Relative index of a dielectric lobe (None: 1.5), real part of a conductor's complex
+        index (required), per channel, or the index (>= 1) of a thin film's base (None: 1.5);
+        not for ``fresnel="schlick"``.
     k : array_like or None, scalar or (..., C), default None; >= 0 or None; differentiable
         Extinction coefficient of a conductor lobe, per channel (required); only for
         ``fresnel="conductor"``.
+    thickness : array_like or None, scalar or (..., 1), default None; >= 0 or None; differentiable
+        A thin film's thickness in nm (required for ``fresnel="thin_film"``, else not taken).
+    film_eta : array_like or None, scalar or (..., 1), default None; >= 1 or None; differentiable
+        A thin film's index (required for ``fresnel="thin_film"``, else not taken).
     distribution : {"ggx", "beckmann", "blinn_phong"}, default "ggx"; static, not differentiable
         Which distribution of normals the lobe has (``alpha <= 1`` for Blinn-Phong).
     masking : {"separable", "height_correlated"}, default "separable"; static, not differentiable
@@ -116,16 +130,19 @@ class SpecularLobe(AbstractMicrofacetBSDF):
     f0: Optional[jnp.ndarray]
     eta: Optional[jnp.ndarray]
     k: Optional[jnp.ndarray]
+    thickness: Optional[jnp.ndarray]
+    film_eta: Optional[jnp.ndarray]
     fresnel: str = eqx.field(static=True)
 
     def __init__(self, alpha=0.2, fresnel="schlick", weight=1.0, f0=None, eta=None, k=None, distribution="ggx",
-                 masking="separable", alpha_y=None, sampling="visible"):
+                 masking="separable", alpha_y=None, sampling="visible", thickness=None, film_eta=None):
         owner = "SpecularLobe"
         check_choice(owner, "fresnel", fresnel, FRESNEL_KINDS)
         self._init_microfacet(owner, alpha, alpha_y, distribution, masking, sampling)
         check_range(owner, "weight", weight, 0.0)
-        given = {n for n, v in (("f0", f0), ("eta", eta), ("k", k)) if v is not None}
-        takes = {"schlick": {"f0"}, "dielectric": {"eta"}, "conductor": {"eta", "k"}}[fresnel]
+        given = {n for n, v in (("f0", f0), ("eta", eta), ("k", k), ("thickness", thickness), ("film_eta", film_eta))
+                 if v is not None}
+        takes = set(FRESNEL_PARAMS[fresnel])
         if given - takes:
             raise ParameterError(f"{owner}: {', '.join(sorted(given - takes))} does not apply to a {fresnel!r} lobe "
                                  f"(it takes {', '.join(sorted(takes))})")
@@ -135,6 +152,18 @@ class SpecularLobe(AbstractMicrofacetBSDF):
         elif fresnel == "dielectric":
             eta = 1.5 if eta is None else eta
             check_range(owner, "eta", eta, 0.0, lo_open=True)
+        elif fresnel == "thin_film":
+            if thickness is None or film_eta is None:
+                raise ParameterError(f"{owner}: a 'thin_film' lobe needs thickness (nm) and film_eta")
+            eta = 1.5 if eta is None else eta
+            check_range(owner, "thickness", thickness, 0.0)
+            check_range(owner, "film_eta", film_eta, 1.0)
+            check_range(owner, "eta", eta, 1.0)
+            for n, v in (("thickness", thickness), ("film_eta", film_eta), ("eta", eta)):
+                if np.ndim(v) and np.shape(v)[-1] != 1:
+                    raise ParameterError(f"{owner}: a thin film's {n} is one value for every channel (its colour "
+                                         f"comes from the film): the last axis must have length 1, got shape "
+                                         f"{np.shape(v)}")
         else:
             if eta is None or k is None:
                 raise ParameterError(f"{owner}: a 'conductor' lobe needs eta and k (its complex index)")
@@ -145,11 +174,18 @@ class SpecularLobe(AbstractMicrofacetBSDF):
         self.f0 = None if f0 is None else as_channels(f0)
         self.eta = None if eta is None else as_channels(eta)
         self.k = None if k is None else as_channels(k)
+        self.thickness = None if thickness is None else as_channels(thickness)
+        self.film_eta = None if film_eta is None else as_channels(film_eta)
 
-    pair_kernels = True
+    @property
+    def pair_kernels(self):
+        # a film's three channels come from one spectrum: not one kernel per channel
+        return self.fresnel != "thin_film"
 
     @property
     def channels(self):
+        if self.fresnel == "thin_film":
+            return 3
         return channel_count(*(p for p in (self.weight, self.f0, self.eta, self.k) if p is not None))
 
     def pdf(self, wo, wi):
@@ -182,6 +218,9 @@ class SpecularLobe(AbstractMicrofacetBSDF):
             F = fresnel_schlick(pairs.cos_d[..., None], self.f0)
         elif self.fresnel == "dielectric":
             F = fresnel_dielectric(pairs.cos_d[..., None], self.eta)
+        elif self.fresnel == "thin_film":
+            # the film's parameters have one channel: (..., 1) -> RGB (..., 3)
+            F = fresnel_thin_film(pairs.cos_d[..., None], self.thickness, self.film_eta, self.eta)[..., 0, :]
         else:
             F = fresnel_conductor(pairs.fresnel_angle().expand(), self.eta, self.k)
         return self.weight * F
@@ -205,6 +244,8 @@ class SpecularLobe(AbstractMicrofacetBSDF):
             return self.f0
         if self.fresnel == "dielectric":
             return fresnel_dielectric(jnp.ones((), self.eta.dtype), self.eta)
+        if self.fresnel == "thin_film":
+            return fresnel_thin_film(jnp.ones((), self.eta.dtype), self.thickness, self.film_eta, self.eta)[..., 0, :]
         return fresnel_conductor(jnp.ones((), self.eta.dtype), self.eta, self.k)
 
     def reflectance_estimate(self):
@@ -285,7 +326,9 @@ class MultiLobe(AbstractBSDF):
         self.diffuse = as_channels(albedo)
         self.lobes = tuple(lobes)
 
-    pair_kernels = True
+    @property
+    def pair_kernels(self):
+        return all(lobe.pair_kernels for lobe in self.lobes)
 
     @property
     def channels(self):
