@@ -51,7 +51,10 @@ def run(shared, files, losses, log=print):
                 continue
             t0 = time.perf_counter()
             result, choice = choose_family(table, loss=loss, log=lambda s: log(f"[{p.stem} {loss}] {s.strip()}"))
-            rec[key] = dict(choice.to_dict(), file=p.stem, loss=loss, seconds=time.perf_counter() - t0,
+            from matfit.fitting import highlight_hues
+
+            hues = {"measured": highlight_hues(table).tolist(), "fit": highlight_hues(table, result.model).tolist()}
+            rec[key] = dict(choice.to_dict(), file=p.stem, loss=loss, seconds=time.perf_counter() - t0, hues=hues,
                             chosen_appearance=result.appearance.to_dict(),
                             params={k: [float(x) for x in __import__("numpy").ravel(v)] for k, v in result.params.items()})
             log(f"[{p.stem} {loss}] {choice.summary().splitlines()[0]}  ({rec[key]['seconds']:.0f} s)")
@@ -76,9 +79,11 @@ def write_page(rec):
          "`matfit.appearance`, noise-free at 96 px (quadrature floor in `docs/performance.md`); means over the "
          "sphere's pixels. Score = max over the lightings of "
          f"max(FLIP / {FLIP_LINE}, CIEDE2000 / {CIEDE2000_LINE}): at or below 1 the two look alike.", "",
-         "These figures were computed with the lightings at half their shipped resolution (16 x 32 sky cells, "
-         "19-point discs), whose floor reached FLIP 0.085 on the glossiest film; the choice is the same code. "
-         "Rerun with the JSON removed to refresh them.", "",
+         "The `e2` runs (the default call) were computed at the lightings' shipped resolution, with the `film` "
+         "family (a thin-film lobe) among the candidates where the highlight's hue turns (2026-12-06). The `l2` "
+         "and `cbrt` columns are older: lightings at half their shipped resolution (16 x 32 sky cells, 19-point "
+         "discs, a floor of FLIP 0.085 on the glossiest film) and no `film` family; rerun with their entries "
+         "removed from the JSON to refresh them.", "",
          "## The loss of the default call", "",
          "The chosen family's score per file, the family chosen under each loss:", "",
          "| file | " + " | ".join(losses) + " |", "| --- |" + " --- |" * len(losses)]
@@ -106,6 +111,19 @@ def write_page(rec):
                  f"{a['sky']['means']['ciede2000']:.2f} | {a['studio']['means']['flip']:.3f} / "
                  f"{a['studio']['means']['ciede2000']:.2f} | {'yes' if a['looks_alike'] else 'no'} | "
                  f"{', '.join(a['where']) or '-'} | {'; '.join(r['missing']) or '-'} |")
+    L += ["", "## The highlight's hue per band of difference angle (default call)", "",
+          "Hue (degrees) of the mean RGB of the rows within 5° of the mirror direction, per band of θd "
+          "(`matfit.fitting.highlight_hues`): the measurement, then the chosen fit on the same rows, and the largest "
+          "difference over the bands (a white highlight's hue, at grazing light, is ill defined).", "",
+          "| file | measured 0-20 / 20-40 / 40-60 / 60-90° | fit | largest difference |", "| --- | --- | --- | --- |"]
+    for f in files:
+        r = rec.get(f"{f}/{CHOICE_LOSS}")
+        if not r or "hues" not in r:
+            continue
+        m, g = r["hues"]["measured"], r["hues"]["fit"]
+        diff = [abs((a - b + 180) % 360 - 180) for a, b in zip(m, g) if a == a and b == b]
+        L.append(f"| {f} | {' / '.join(f'{x:.0f}' for x in m)} | {' / '.join(f'{x:.0f}' for x in g)} | "
+                 f"{max(diff):.0f}° |" if diff else f"| {f} | - | - | - |")
     L += ["", "## Every candidate", ""]
     for f in files:
         for l in losses:

@@ -58,6 +58,11 @@ def test_cues_see_what_the_material_shows():
     c = appearance_cues(_table(two))
     assert c["second_lobe"] and c["lobe_misfit"] > 3 * grey["lobe_misfit"]
     assert "lobes3" in candidates_for(c) and "conductor" in candidates_for(gold) and "car_paint" in candidates_for(gold)
+    # a thin film: the highlight's hue turns with the angle, and the film family is a candidate
+    film = MultiLobe(jnp.array([0.05, 0.05, 0.05]), [SpecularLobe(0.08, "thin_film", 1.0, thickness=420.0,
+                                                                   film_eta=1.8, eta=1.5)])
+    f = appearance_cues(_table(film))
+    assert f["colour_shift"] and "film" in candidates_for(f) and "film" not in candidates_for(grey)
     # an excess at grazing angles (a sheen): grazing off-mirror rows three times the Lambertian value
     t = _table(Lambert(0.5))
     th = np.degrees(np.arccos(np.stack([t.wi[:, 2], t.wo[:, 2]])))

@@ -123,8 +123,9 @@ def test_export_refuses_what_a_target_cannot_hold():
 
 
 # -- glTF -------------------------------------------------------------------------------------
-def _gltf_reference(wo, wi, c, metallic, alpha, ior, ws, cs, cc, cc_alpha):
-    """The glTF specification's BRDF (Appendix B + KHR_materials_specular/clearcoat) in numpy."""
+def _gltf_reference(wo, wi, c, metallic, alpha, ior, ws, cs, cc, cc_alpha, irid=(0.0, 1.3, 400.0)):
+    """The glTF specification's BRDF (Appendix B + KHR_materials_specular/clearcoat/iridescence,
+    the film's reflectance from numpy_ref's characteristic-matrix spectrum) in numpy."""
     h = wo + wi
     h /= np.linalg.norm(h, axis=1, keepdims=True)
     vh = np.abs(np.sum(wo * h, axis=1))[:, None]
@@ -139,6 +140,8 @@ def _gltf_reference(wo, wi, c, metallic, alpha, ior, ws, cs, cc, cc_alpha):
     c, cs = np.asarray(c), np.asarray(cs)
     f0 = np.minimum(((ior - 1) / (ior + 1)) ** 2 * cs, 1) * ws
     F = f0 + (ws - f0) * (1 - vh) ** 5
+    if irid[0] > 0:
+        F = (1 - irid[0]) * F + irid[0] * R.thin_film_rgb(vh[:, 0], irid[2], irid[1], ior)
     diel = (1 - F.max(axis=1, keepdims=True)) * c / np.pi + F * spec(alpha)
     metal = (c + (1 - c) * (1 - vh) ** 5) * spec(alpha)
     base = (1 - metallic) * diel + metallic * metal
@@ -152,6 +155,35 @@ def test_gltf_brdf_matches_the_specification_formulas(x64):
     m = GltfPBR(*args)
     ours = np.asarray(m.eval(jnp.asarray(wo), jnp.asarray(wi)))
     np.testing.assert_allclose(ours, _gltf_reference(wo, wi, *args), rtol=1e-9, atol=1e-12)
+
+
+def test_gltf_iridescence_matches_the_film_formula(x64):
+    wo, wi = _pairs(300)
+    args = ([0.3, 0.2, 0.1], 0.0, 0.1, 1.5, 1.0, 1.0, 0.0, 0.01)
+    m = GltfPBR(*args, iridescence=0.8, iridescence_ior=1.9, iridescence_thickness=320.0)
+    ours = np.asarray(m.eval(jnp.asarray(wo), jnp.asarray(wi)))
+    ref = _gltf_reference(wo, wi, *args, irid=(0.8, 1.9, 320.0))
+    np.testing.assert_allclose(ours, ref, rtol=1e-8, atol=1e-12)
+    assert np.abs(ours - _gltf_reference(wo, wi, *args)).max() > 0.1  # the film changes the highlight
+
+
+def test_gltf_exports_a_thin_film_as_iridescence():
+    pygltflib = pytest.importorskip("pygltflib", reason="pygltflib not installed")
+    from matfit.fitting import get_family
+
+    film = get_family("film").build({"alpha_1": 0.08, "ks_1": 1.0, "thickness_1": 300.0, "film_eta_1": 1.8,
+                                     "eta_1": 1.5, "ratio_2": 4.0, "ks_2": np.array([0.2, 0.1, 0.05]), "f0_2": 1.0}, 3)
+    r = to_gltf(film)
+    g = pygltflib.GLTF2().from_json(json.dumps(r.content))
+    ext = g.materials[0].extensions["KHR_materials_iridescence"]
+    assert "KHR_materials_iridescence" in g.extensionsUsed and not r.exact
+    assert ext["iridescenceFactor"] == 1.0 and ext["iridescenceThicknessMinimum"] == ext["iridescenceThicknessMaximum"]
+    # the fitted film has the lobe's optical thickness (what fixes its colours) within 10 %
+    assert abs(ext["iridescenceIor"] * ext["iridescenceThicknessMaximum"] / (1.8 * 300.0) - 1) < 0.1, ext
+    # and its sphere looks like the model's: a CIEDE2000 of ~2 is a just-visible difference
+    assert r.fidelity.ciede2000 < 2.5, r.fidelity
+    assert {m.target for m in r.mapping} >= {"KHR_materials_iridescence.iridescenceIor",
+                                              "KHR_materials_iridescence.iridescenceThicknessMaximum"}
 
 
 def test_gltf_brdf_samples_by_its_pdf(x64):

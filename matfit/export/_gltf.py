@@ -1,12 +1,14 @@
 """glTF 2.0: a material of the metallic-roughness model with KHR_materials_ior,
-KHR_materials_specular and KHR_materials_clearcoat.
+KHR_materials_specular, KHR_materials_clearcoat and KHR_materials_iridescence.
 
 A glTF material is :class:`~matfit.models.GltfPBR`. A Lambertian model maps exactly (metallic 0,
 specular factor 0); a :class:`~matfit.models.GltfPBR` maps exactly; every other model is
 approximated by fitting a GltfPBR to it over the hemisphere (:func:`~matfit.export.fit_target`):
 a conductor by a metal (F0 colour and roughness: Schlick's Fresnel cannot follow a complex
 index), a plastic by a dielectric (base colour, roughness, ior), a coated metal by a metal under
-the clear coat, anything else by the general metallic-roughness material.
+the clear coat, a model with a thin-film lobe (:class:`~matfit.models.MultiLobe`) by an
+iridescent dielectric (base colour, roughness, ior, the film's index and thickness, started from
+the film lobe's), anything else by the general metallic-roughness material.
 
 Roughness: ``roughnessFactor = sqrt(alpha)`` (glTF squares it), likewise for the clear coat.
 """
@@ -19,13 +21,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import ParameterError
-from ..fresnel import fresnel_conductor
-from ..models import GltfPBR, Lambert, Layered, Plastic, RoughConductor, SmoothConductor
+from ..fresnel import FILM_ETA_RANGE, FILM_THICKNESS_RANGE, fresnel_conductor
+from ..models import GltfPBR, Lambert, Layered, MultiLobe, Plastic, RoughConductor, SmoothConductor
 from ._model_file import plain_numbers
 from ._fidelity import fit_target, measure
 from ._result import ExportResult, ParamMapping, check_model, rgb
 
-EXTENSIONS = ("KHR_materials_ior", "KHR_materials_specular", "KHR_materials_clearcoat")
+EXTENSIONS = ("KHR_materials_ior", "KHR_materials_specular", "KHR_materials_clearcoat", "KHR_materials_iridescence")
 
 
 def _rgb(x):
@@ -51,6 +53,13 @@ def families():
         "coated_metal": Family("gltf_coated_metal", (col, a, Param("clearcoat_alpha", 2e-3, 1.0, False, "coat width")),
                                lambda p, C: GltfPBR(p["base_color"], 1.0, p["alpha"], clearcoat=1.0,
                                                     clearcoat_alpha=p["clearcoat_alpha"]), "glTF metal under a clear coat"),
+        "iridescent": Family("gltf_iridescent", (col, a, Param("ior", 1.05, 3.0, False, "index under the film"),
+                                                 Param("iridescence_ior", *FILM_ETA_RANGE, False, "film index"),
+                                                 Param("iridescence_thickness", *FILM_THICKNESS_RANGE, False, "film (nm)")),
+                             lambda p, C: GltfPBR(p["base_color"], 0.0, p["alpha"], p["ior"], iridescence=1.0,
+                                                  iridescence_ior=p["iridescence_ior"],
+                                                  iridescence_thickness=p["iridescence_thickness"]),
+                             "glTF iridescent dielectric"),
         "general": Family("gltf_general", (col, Param("metallic", 0.0, 1.0, False, "metallic"), a),
                           lambda p, C: GltfPBR(p["base_color"], p["metallic"], p["alpha"]), "glTF metallic-roughness"),
     }
@@ -74,6 +83,14 @@ def _plan(model):
         return fam["coated_metal"], {"base_color": _f0(np.asarray(model.base.eta) * eta_c, np.asarray(model.base.k) * eta_c),
                                      "alpha": float(np.clip(np.asarray(model.base.alpha), 3e-3, 0.99)),
                                      "clearcoat_alpha": a_c}
+    films = [lb for lb in getattr(model, "lobes", ()) if lb.fresnel == "thin_film"] if isinstance(model, MultiLobe) else []
+    if films:
+        lb = films[0]
+        return fam["iridescent"], {"base_color": np.clip(np.broadcast_to(np.asarray(model.diffuse), (3,)), 0.01, 0.99),
+                                   "alpha": float(np.clip(_f(lb.alpha), 3e-3, 0.99)),
+                                   "ior": float(np.clip(_f(lb.eta), 1.06, 2.9)),
+                                   "iridescence_ior": float(np.clip(_f(lb.film_eta), 1.0, 2.6)),
+                                   "iridescence_thickness": float(np.clip(_f(lb.thickness), 0.0, 1000.0))}
     if model.has_delta_lobe or model.transmits:
         return None
     return fam["general"], None
@@ -88,6 +105,10 @@ def gltf_parameters(m: GltfPBR):
     if _f(m.clearcoat) > 0:
         ext["KHR_materials_clearcoat"] = {"clearcoatFactor": _f(m.clearcoat),
                                           "clearcoatRoughnessFactor": float(np.sqrt(_f(m.clearcoat_alpha)))}
+    if _f(m.iridescence) > 0:
+        d = _f(m.iridescence_thickness)
+        ext["KHR_materials_iridescence"] = {"iridescenceFactor": _f(m.iridescence), "iridescenceIor": _f(m.iridescence_ior),
+                                            "iridescenceThicknessMinimum": d, "iridescenceThicknessMaximum": d}
     return {"name": "matfit", "pbrMetallicRoughness": pbr, "extensions": ext}
 
 
@@ -104,6 +125,15 @@ def _mapping(mat, source, exact, note=""):
         out += [ParamMapping("KHR_materials_clearcoat.clearcoatFactor", c["clearcoatFactor"], "clearcoat", exact, note),
                 ParamMapping("KHR_materials_clearcoat.clearcoatRoughnessFactor", c["clearcoatRoughnessFactor"],
                              "sqrt(clearcoat_alpha)", exact, note)]
+    if "KHR_materials_iridescence" in ext:
+        c = ext["KHR_materials_iridescence"]
+        out += [ParamMapping("KHR_materials_iridescence.iridescenceFactor", c["iridescenceFactor"], "iridescence", exact,
+                             note),
+                ParamMapping("KHR_materials_iridescence.iridescenceIor", c["iridescenceIor"],
+                             source.get("iridescence_ior", "iridescence_ior"), exact, note),
+                ParamMapping("KHR_materials_iridescence.iridescenceThicknessMaximum", c["iridescenceThicknessMaximum"],
+                             source.get("iridescence_thickness", "iridescence_thickness (nm; minimum the same)"),
+                             exact, note)]
     return out
 
 
@@ -162,6 +192,7 @@ def to_gltf(model) -> ExportResult:
     used = sorted(mat["extensions"])
     doc = {"asset": {"version": "2.0", "generator": "matfit"}, "extensionsUsed": used, "materials": [mat]}
     src = {"base": "albedo", "metallic": "0", "specular": "0 (no specular layer)"} if isinstance(model, Lambert) else (
-        {} if exact else {k: "fitted" for k in ("base", "metallic", "alpha", "ior", "specular")})
+        {} if exact else {k: "fitted" for k in ("base", "metallic", "alpha", "ior", "specular", "iridescence_ior",
+                                                "iridescence_thickness")})
     mapping = _mapping(mat, src, exact, "" if exact else "fitted to the model over the hemisphere")
     return ExportResult("gltf", doc, mapping, t, fid, notes)

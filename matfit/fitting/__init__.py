@@ -6,10 +6,11 @@ from .losses import LOSSES, residuals
 from .methods import DEFAULT_METHOD, Method, get_method
 from .params import FAMILIES, Family, Lobe, Param, Parametrization, TruthMap, compose_family, family_describing, get_family
 from ._compose import METAL_ETA_RANGE, METAL_K_RANGE
+from ._film_guess import highlight_hues
 
 __all__ = [
     "FAMILIES", "Family", "Param", "Parametrization", "TruthMap", "family_describing", "get_family", "Lobe",
-    "compose_family", "METAL_ETA_RANGE", "METAL_K_RANGE",
+    "compose_family", "METAL_ETA_RANGE", "METAL_K_RANGE", "highlight_hues",
     "LOSSES", "residuals", "DEFAULT_METHOD", "Method", "get_method",
     "METHODS", "FitError", "FitResult", "fit", "fit_batch", "initial_guess", "initial_guesses",
     "BatchFit", "fit_arrays", "guesses_from_arrays",

@@ -16,8 +16,9 @@ r"""Which family: cheap cues of the data pick the candidates, the rendered image
    :math:`\theta_h`); an azimuthal dependence (the spread of log values over the half
    vector's azimuth in cells of :math:`\theta_h, \theta_d`, about a plane in those angles).
 2. **Candidates**: ``lambert``, ``plastic``, ``lobes1`` and ``lobes2`` always; ``lobes3`` with a
-   second lobe; ``car_paint`` with a coloured highlight or a colour change; ``conductor`` with a
-   coloured highlight or a dark floor (specular ratio above 50).
+   second lobe; ``car_paint`` with a coloured highlight or a colour change; ``film`` (a thin-film
+   lobe) with a colour change; ``conductor`` with a coloured highlight or a dark floor (specular
+   ratio above 50).
 3. **Judge**: every candidate is fitted, rendered beside the measurement under each lighting of
    :data:`~matfit.appearance.JUDGE_LIGHTS` and scored by
    :math:`s = \max_\text{lights}\max(\text{FLIP}/0.05,\ \text{CIEDE2000}/1.5)`: :math:`s \le 1`
@@ -227,6 +228,8 @@ def candidates_for(cues):
         out["lobes3"] = "the peak has a second width"
     if cues.get("coloured_highlight") or cues.get("colour_shift"):
         out["car_paint"] = "a coloured highlight" if cues.get("coloured_highlight") else "colour changes with angle"
+    if cues.get("colour_shift"):
+        out["film"] = "the highlight's hue turns with angle (a thin film)"
     if cues.get("dark_floor") or cues.get("coloured_highlight"):
         out["conductor"] = "a dark floor under a strong peak" if cues.get("dark_floor") else "a coloured highlight"
     from .params import FAMILIES, Parametrization
@@ -235,8 +238,7 @@ def candidates_for(cues):
 
 
 #: What a cue says no registered family carries.
-_MISSING = {"colour_shift": "a highlight whose hue turns with angle (thin-film interference, a tinted layer)",
-            "grazing_excess": "an excess at grazing angles, backward as well as forward (a sheen lobe)",
+_MISSING = {"grazing_excess": "an excess at grazing angles, backward as well as forward (a sheen lobe)",
             "azimuthal": "an azimuthal dependence (anisotropy)"}
 #: The grazing excess when the backward grazing rows show none, or the table holds none.
 _FORWARD_GRAZING = {

@@ -567,7 +567,7 @@ class LobeSpec:
             level = {}
             for j in films:
                 names = self.lobe_names(j)
-                for kind in ("thickness", "film_eta"):
+                for kind in ("thickness", "film_eta", "eta"):
                     if names[kind] not in fixed:
                         level[names[kind]] = c[kind]
             out.append(level)

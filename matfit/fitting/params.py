@@ -969,6 +969,13 @@ FAMILIES.update({
         doc=f"Lambertian albedo plus {K} GGX lobe{'s' if K > 1 else ''} (per-channel weights ks, one Schlick F0"
             f"{', widths ordered' if K > 1 else ''})")
     for K in (1, 2, 3)})
+# a highlight whose hue turns with the angle: a GGX lobe whose Fresnel is a thin film (one weight,
+# the colour is the film's) over a wide coloured GGX lobe (Schlick, per-channel weight) in place of a
+# Lambertian base (the colour-shifting films of the RGL set are dark at grazing angles)
+FAMILIES["film"] = compose_family(
+    "film", [Lobe("ggx", "thin_film"), Lobe("ggx", "schlick")], base=None, tied=("ks_1",),
+    doc="GGX lobe with a thin-film Fresnel (iridescence: thickness_1, film_eta_1 on eta_1) over a wide coloured "
+        "GGX lobe (Schlick f0_2, per-channel ks_2)")
 FAMILIES["metal2"] = compose_family(
     "metal2", [Lobe("ggx", "conductor")] * 2, base=None, weights="mixture", share=("eta", "k"),
     doc="rough conductor with two GGX widths mixed (one complex index)")

@@ -1,5 +1,6 @@
 r"""glTF 2.0 metallic-roughness material: the BRDF of the glTF specification (Appendix B) with
-the KHR_materials_ior, KHR_materials_specular and KHR_materials_clearcoat extensions.
+the KHR_materials_ior, KHR_materials_specular, KHR_materials_clearcoat and
+KHR_materials_iridescence extensions.
 
 This is the BRDF a glTF viewer renders, written as a matfit model so that matfit can fit it to
 any of its own models (:mod:`matfit.export`) and measure how close the glTF material comes. With
@@ -14,6 +15,13 @@ any of its own models (:mod:`matfit.export`) and measure how close the glTF mate
     f_{base} &= (1 - m)\,f_{diel} + m\,f_{metal}\\
     f &= (1 - w_c F_c)\,f_{base} + w_c F_c\,S_{\alpha_c},\qquad F_c = 0.04 + 0.96\,(1 - |\cos\theta_o|)^5
 
+With iridescence (factor :math:`w_i`, a film of index :math:`\eta_i` and thickness :math:`d_i`),
+the dielectric's Fresnel becomes :math:`(1 - w_i) F_d + w_i F_{film}(|\omega_o\cdot h|)`, the
+thin film's reflectance on a base of index :math:`\eta` (:func:`~matfit.fresnel.fresnel_thin_film`:
+the Airy sum integrated per wavelength; the extension's reference shader integrates the same
+Airy sum analytically, after Belcour & Barla 2017). The metal part keeps Schlick's Fresnel (the
+extension's film over a metal is not modelled).
+
 (:math:`m` metallic, :math:`w_s, c_s` the specular factor and colour, :math:`w_c` the clear coat
 factor, :math:`\max_c` the largest colour channel; the coat's Fresnel reads the viewing angle to
 the coat's normal, as the clear coat extension specifies). :math:`S_\alpha` uses the
@@ -26,13 +34,14 @@ the coat lobe's, picked with probabilities proportional to ``(1 - m) / 2``, ``(1
 References
 ----------
 - The Khronos Group, "glTF 2.0 Specification", Appendix B: BRDF Implementation, 2021.
-- The Khronos Group, KHR_materials_ior, KHR_materials_specular, KHR_materials_clearcoat
-  extension specifications.
+- The Khronos Group, KHR_materials_ior, KHR_materials_specular, KHR_materials_clearcoat,
+  KHR_materials_iridescence extension specifications.
 """
 
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 
 from .._math import COS_EPS, cosine_hemisphere, normalize, safe_div
@@ -41,7 +50,7 @@ from ._pairs import SoAPairs
 from ..microfacet import MASKING_FORMS
 from ._params import (as_channels, as_param, channel_count, check_channels, check_choice, check_directions, check_range,
                       check_u)
-from ..fresnel import fresnel_schlick
+from ..fresnel import fresnel_schlick, fresnel_thin_film
 from .lambert import cosine_pdf
 from .rough_conductor import RoughConductor
 
@@ -69,6 +78,12 @@ class GltfPBR(AbstractBSDF):
         Clear coat factor :math:`w_c` (KHR_materials_clearcoat).
     clearcoat_alpha : array_like, scalar or (...), default 0.01; > 0; differentiable
         GGX width :math:`\alpha_c` of the coat lobe, ``clearcoatRoughnessFactor**2``.
+    iridescence : array_like, scalar or (...), default 0.0; [0, 1]; differentiable
+        Iridescence factor :math:`w_i` (KHR_materials_iridescence ``iridescenceFactor``).
+    iridescence_ior : array_like, scalar or (...), default 1.3; >= 1; differentiable
+        Index :math:`\eta_i` of the thin film (``iridescenceIor``).
+    iridescence_thickness : array_like, scalar or (...), default 400.0; >= 0; differentiable
+        Film thickness :math:`d_i` in nm (``iridescenceThicknessMaximum``, no thickness texture).
     masking : {"height_correlated", "separable"}, default "height_correlated"; static, not differentiable
         Smith form of both lobes; the default is the specification's visibility term
         ``V_GGX = 1 / (2 (|n.l| sqrt(a^2 + (1 - a^2)(n.v)^2) + |n.v| sqrt(a^2 + (1 - a^2)(n.l)^2)))``.
@@ -91,10 +106,14 @@ class GltfPBR(AbstractBSDF):
     specular_color: jnp.ndarray = eqx.field(converter=as_channels)
     clearcoat: jnp.ndarray
     clearcoat_alpha: jnp.ndarray
+    iridescence: jnp.ndarray
+    iridescence_ior: jnp.ndarray
+    iridescence_thickness: jnp.ndarray
     masking: str = eqx.field(static=True)
 
     def __init__(self, base_color, metallic=0.0, alpha=0.25, ior=1.5, specular=1.0, specular_color=1.0, clearcoat=0.0,
-                 clearcoat_alpha=0.01, masking="height_correlated"):
+                 clearcoat_alpha=0.01, masking="height_correlated", iridescence=0.0, iridescence_ior=1.3,
+                 iridescence_thickness=400.0):
         check_range("GltfPBR", "base_color", base_color, 0.0, 1.0)
         check_range("GltfPBR", "metallic", metallic, 0.0, 1.0)
         check_range("GltfPBR", "alpha", alpha, 0.0, lo_open=True)
@@ -103,6 +122,9 @@ class GltfPBR(AbstractBSDF):
         check_range("GltfPBR", "specular_color", specular_color, 0.0)
         check_range("GltfPBR", "clearcoat", clearcoat, 0.0, 1.0)
         check_range("GltfPBR", "clearcoat_alpha", clearcoat_alpha, 0.0, lo_open=True)
+        check_range("GltfPBR", "iridescence", iridescence, 0.0, 1.0)
+        check_range("GltfPBR", "iridescence_ior", iridescence_ior, 1.0)
+        check_range("GltfPBR", "iridescence_thickness", iridescence_thickness, 0.0)
         check_channels("GltfPBR", base_color=base_color, specular_color=specular_color)
         check_choice("GltfPBR", "masking", masking, MASKING_FORMS)
         self.base_color = base_color
@@ -113,6 +135,9 @@ class GltfPBR(AbstractBSDF):
         self.specular_color = specular_color
         self.clearcoat = as_param(clearcoat)
         self.clearcoat_alpha = as_param(clearcoat_alpha)
+        self.iridescence = as_param(iridescence)
+        self.iridescence_ior = as_param(iridescence_ior)
+        self.iridescence_thickness = as_param(iridescence_thickness)
         self.masking = masking
 
     @property
@@ -133,6 +158,13 @@ class GltfPBR(AbstractBSDF):
         f0 = ((self.ior - 1) / (self.ior + 1)) ** 2
         ws = self.specular[..., None]
         Fd = fresnel_schlick(vh, jnp.minimum(f0[..., None] * self.specular_color, 1) * ws, ws)
+        if not (isinstance(self.iridescence, jnp.ndarray) and self.iridescence.shape == () and
+                not isinstance(self.iridescence, jax.core.Tracer) and float(self.iridescence) == 0.0):
+            # KHR_materials_iridescence: the dielectric's Fresnel mixed with the film's (3 channels)
+            wi_ = self.iridescence[..., None]
+            film = fresnel_thin_film(vh[..., 0], self.iridescence_thickness[..., None], self.iridescence_ior[..., None],
+                                     self.ior[..., None])
+            Fd = (1 - wi_) * Fd + wi_ * film
         # KHR_materials_specular: the diffuse part loses the largest channel of the Fresnel term
         diel = (1 - jnp.max(Fd, axis=-1, keepdims=True)) * c / jnp.pi + Fd * spec
         metal = fresnel_schlick(vh, c) * spec
