@@ -13,7 +13,7 @@ import pytest
 import numpy_ref as R
 from matfit.errors import DataFormatError, ParameterError
 from matfit.export import (describe_model, export, load_model, model_from_description, relative_rmse, save_model, to_gltf,
-                           to_materialx, to_mitsuba, to_mitsuba_xml, to_pbrt)
+                           to_materialx, to_mitsuba, to_mitsuba_xml, to_openpbr, to_pbrt)
 from matfit.models import (Blend, CoatedConductor, GltfPBR, Lambert, Plastic, RoughConductor, RoughDielectric,
                            SmoothConductor, SmoothDielectric)
 
@@ -227,11 +227,22 @@ def test_gltf_approximates_a_conductor_by_a_fitted_metal():
 
 
 # -- MaterialX --------------------------------------------------------------------------------
-@pytest.mark.parametrize("model", [Lambert([0.5, 0.4, 0.3]), GltfPBR([0.8, 0.5, 0.2], 1.0, 0.09, clearcoat=1.0)],
-                         ids=["lambert", "gltf"])
-def test_materialx_documents_pass_materialx_validation(model):
+_MX_MODELS = {"lambert": lambda: Lambert([0.5, 0.4, 0.3]),
+              "gltf": lambda: GltfPBR([0.8, 0.5, 0.2], 1.0, 0.09, clearcoat=1.0),
+              "gltf-film": lambda: GltfPBR([0.1, 0.1, 0.1], 0.0, 0.09, iridescence=1.0, iridescence_ior=1.9,
+                                           iridescence_thickness=320.0)}
+#: exporter, shader category, thin-film thickness per nm, the thin film's weight input (or None)
+_MX_SURFACES = {"standard_surface": (to_materialx, "standard_surface", 1.0, None),
+                "openpbr": (to_openpbr, "open_pbr_surface", 1e-3, "thin_film_weight")}
+
+
+@pytest.mark.parametrize("surface", list(_MX_SURFACES))
+@pytest.mark.parametrize("name", list(_MX_MODELS))
+def test_materialx_documents_pass_materialx_validation(name, surface):
     mx = pytest.importorskip("MaterialX", reason="materialx not installed (pip install materialx)")
-    r = to_materialx(model)
+    exporter, category, per_nm, weight = _MX_SURFACES[surface]
+    model = _MX_MODELS[name]()
+    r = exporter(model)
     doc = mx.createDocument()
     mx.readFromXmlString(doc, r.content)
     lib = mx.createDocument()
@@ -240,11 +251,18 @@ def test_materialx_documents_pass_materialx_validation(model):
     ok, msg = doc.validate()
     assert ok, msg
     shader = doc.getNode("matfit_shader")
-    assert shader.getCategory() == "standard_surface"
+    assert shader.getCategory() == category
     assert doc.getNode("matfit").getType() == "material"
     assert r.exact == isinstance(model, Lambert)
     if isinstance(model, GltfPBR):
         assert shader.getInputValue("specular_roughness") == pytest.approx(0.3, rel=1e-5)
+    if name == "gltf-film":  # the film's thickness in the shader's unit, its index, its weight
+        assert shader.getInputValue("thin_film_thickness") == pytest.approx(320.0 * per_nm, rel=1e-5)
+        assert shader.getInputValue("thin_film_IOR" if weight is None else "thin_film_ior") == pytest.approx(1.9)
+        if weight:
+            assert shader.getInputValue(weight) == pytest.approx(1.0)
+    else:
+        assert shader.getInput("thin_film_thickness") is None
 
 
 # -- pbrt-v4 ----------------------------------------------------------------------------------

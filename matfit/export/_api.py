@@ -6,7 +6,7 @@ from ..errors import ParameterError
 from . import _mitsuba
 from ._fidelity import fit_target, measure
 from ._gltf import to_gltf
-from ._materialx import to_materialx
+from ._materialx import to_materialx, to_openpbr
 from ._pbrt import to_pbrt
 from ._result import ExportResult, ParamMapping, check_model, reject_tabulated
 
@@ -92,7 +92,7 @@ def to_mitsuba_xml(model) -> ExportResult:
 
 #: Target name -> exporter.
 EXPORTERS = {"mitsuba": to_mitsuba, "mitsuba-xml": to_mitsuba_xml, "pbrt": to_pbrt, "gltf": to_gltf,
-             "mtlx": to_materialx}
+             "mtlx": to_materialx, "openpbr": to_openpbr}
 
 
 def export(model, to) -> ExportResult:
@@ -101,14 +101,14 @@ def export(model, to) -> ExportResult:
     Parameters
     ----------
     model : matfit.models.AbstractBSDF
-    to : {"mitsuba", "mitsuba-xml", "pbrt", "gltf", "mtlx"}
+    to : {"mitsuba", "mitsuba-xml", "pbrt", "gltf", "mtlx", "openpbr"}
         The target.
 
     Returns
     -------
     ExportResult
         What the target's exporter returns (:func:`to_mitsuba`, :func:`to_mitsuba_xml`,
-        :func:`to_pbrt`, :func:`to_gltf`, :func:`to_materialx`).
+        :func:`to_pbrt`, :func:`to_gltf`, :func:`to_materialx`, :func:`to_openpbr`).
 
     Raises
     ------

@@ -1,11 +1,12 @@
-"""MaterialX: a document with a ``standard_surface`` shader and its ``surfacematerial``, built
-and written with the ``materialx`` package (pip ``materialx``).
+"""MaterialX: a document with a ``standard_surface`` (or OpenPBR's ``open_pbr_surface``) shader
+and its ``surfacematerial``, built and written with the ``materialx`` package (pip ``materialx``).
 
 A Lambertian model maps exactly (``base`` 1, ``base_color`` = albedo, ``specular`` 0,
 ``diffuse_roughness`` 0). Every other model goes through the glTF BRDF fitted to it
 (:mod:`matfit.export._gltf`), whose parameters standard_surface shares: ``base_color``,
 ``metalness``, ``specular``, ``specular_color``, ``specular_roughness = sqrt(alpha)``,
-``specular_IOR``, ``coat``, ``coat_roughness``, ``coat_IOR = 1.5``. standard_surface layers its
+``specular_IOR``, ``coat``, ``coat_roughness``, ``coat_IOR = 1.5`` and, for a thin film,
+``thin_film_thickness`` (nm) and ``thin_film_IOR``. standard_surface layers its
 lobes with its own energy-conserving albedo scaling and its metal Fresnel from the artistic
 (F0, edge colour) parametrization, so those mappings are approximate; the fidelity reported is
 that of the glTF BRDF.
@@ -50,6 +51,80 @@ def standard_library():
     return lib
 
 
+#: The inputs of each surface shader the exporter writes: matfit's name -> the shader's name, and
+#: the thin film's thickness unit (per nm).
+SURFACES = {
+    "standard_surface": dict(base="base", base_color="base_color", diffuse_roughness="diffuse_roughness",
+                             metalness="metalness", specular="specular", specular_color="specular_color",
+                             specular_roughness="specular_roughness", specular_ior="specular_IOR", coat="coat",
+                             coat_roughness="coat_roughness", coat_ior="coat_IOR", thin_film_weight=None,
+                             thin_film_thickness="thin_film_thickness", thin_film_ior="thin_film_IOR", per_nm=1.0),
+    "open_pbr_surface": dict(base="base_weight", base_color="base_color", diffuse_roughness="base_diffuse_roughness",
+                             metalness="base_metalness", specular="specular_weight", specular_color="specular_color",
+                             specular_roughness="specular_roughness", specular_ior="specular_ior", coat="coat_weight",
+                             coat_roughness="coat_roughness", coat_ior="coat_ior", thin_film_weight="thin_film_weight",
+                             thin_film_thickness="thin_film_thickness", thin_film_ior="thin_film_ior", per_nm=1e-3),
+}
+
+
+def _surface_document(model, surface, owner, fmt):
+    """The MaterialX document of ``model`` as a ``surface`` shader (a key of :data:`SURFACES`)."""
+    check_model(owner, model)
+    mx = _mx()
+    names = SURFACES[surface]
+    doc = mx.createDocument()
+    ss = doc.addNode(surface, "matfit_shader", "surfaceshader")
+    mapping, notes, fid = [], [], None
+
+    def put(key, value, source, exact, note=""):
+        v = plain_numbers(np.asarray(value))
+        if isinstance(v, list):
+            ss.setInputValue(names[key], mx.Color3(*v))
+        else:
+            ss.setInputValue(names[key], float(v))
+        mapping.append(ParamMapping(names[key], v, source, exact, note))
+
+    if isinstance(model, Lambert):
+        put("base", 1.0, "1", True)
+        put("base_color", rgb(owner, model.reflectance), "albedo", True)
+        put("diffuse_roughness", 0.0, "0 (Lambert)", True)
+        put("specular", 0.0, "0 (no specular layer)", True)
+    else:
+        t, exact, fid, notes = gltf_target(model)
+        note = f"{surface}'s layering and metal Fresnel differ from the glTF BRDF fitted to the model"
+        if isinstance(model, GltfPBR):
+            note = f"{surface}'s layering and metal Fresnel differ from the glTF BRDF"
+        put("base", 1.0, "1", False, note)
+        put("base_color", rgb(owner, t.base_color), "base_color", False, note)
+        put("metalness", t.metallic, "metallic", False, note)
+        put("specular", t.specular, "specular", False, note)
+        put("specular_color", rgb(owner, t.specular_color), "specular_color", False, note)
+        put("specular_roughness", np.sqrt(np.asarray(t.alpha, float)), "sqrt(alpha)", False, note)
+        put("specular_ior", t.ior, "ior", False, note)
+        if float(np.asarray(t.clearcoat)) > 0:
+            put("coat", t.clearcoat, "clearcoat", False, note)
+            put("coat_roughness", np.sqrt(np.asarray(t.clearcoat_alpha, float)), "sqrt(clearcoat_alpha)", False, note)
+            put("coat_ior", 1.5, "1.5", False, note)
+        if float(np.asarray(t.iridescence)) > 0:
+            # the shader's thin film over the specular layer: the glTF iridescence's film
+            if names["thin_film_weight"]:
+                put("thin_film_weight", t.iridescence, "iridescence", False, note)
+            unit = "nm" if names["per_nm"] == 1.0 else "um"
+            put("thin_film_thickness", np.asarray(t.iridescence_thickness) * names["per_nm"],
+                f"iridescence_thickness ({unit})", False, note)
+            put("thin_film_ior", t.iridescence_ior, "iridescence_ior", False, note)
+        notes = list(notes) + [f"fidelity measured on the glTF BRDF that {surface} approximates"] if fid else notes
+    doc.addMaterialNode("matfit", ss)
+    lib = standard_library()
+    vdoc = mx.createDocument()
+    vdoc.copyContentFrom(doc)
+    vdoc.importLibrary(lib)
+    ok, msg = vdoc.validate()
+    if not ok:  # a bug of this exporter, never the user's: say so
+        raise MatfitError(f"{owner}: the document failed MaterialX validation: {msg}")
+    return ExportResult(fmt, mx.writeToXmlString(doc), mapping, model if isinstance(model, Lambert) else t, fid, notes)
+
+
 def to_materialx(model) -> ExportResult:
     """A MaterialX document (text) with the ``standard_surface`` of ``model``.
 
@@ -77,48 +152,37 @@ def to_materialx(model) -> ExportResult:
     >>> 'standard_surface' in r.content, r.exact
     (True, True)
     """
-    check_model("to_materialx", model)
-    mx = _mx()
-    doc = mx.createDocument()
-    ss = doc.addNode("standard_surface", "matfit_shader", "surfaceshader")
-    mapping, notes, fid = [], [], None
+    return _surface_document(model, "standard_surface", "to_materialx", "mtlx")
 
-    def put(name, value, source, exact, note=""):
-        v = plain_numbers(np.asarray(value))
-        if isinstance(v, list):
-            ss.setInputValue(name, mx.Color3(*v))
-        else:
-            ss.setInputValue(name, float(v))
-        mapping.append(ParamMapping(name, v, source, exact, note))
 
-    if isinstance(model, Lambert):
-        put("base", 1.0, "1", True)
-        put("base_color", rgb("to_materialx", model.reflectance), "albedo", True)
-        put("diffuse_roughness", 0.0, "0 (Lambert)", True)
-        put("specular", 0.0, "0 (no specular layer)", True)
-    else:
-        t, exact, fid, notes = gltf_target(model)
-        note = "standard_surface's layering and metal Fresnel differ from the glTF BRDF fitted to the model"
-        if isinstance(model, GltfPBR):
-            note = "standard_surface's layering and metal Fresnel differ from the glTF BRDF"
-        put("base", 1.0, "1", False, note)
-        put("base_color", rgb("to_materialx", t.base_color), "base_color", False, note)
-        put("metalness", t.metallic, "metallic", False, note)
-        put("specular", t.specular, "specular", False, note)
-        put("specular_color", rgb("to_materialx", t.specular_color), "specular_color", False, note)
-        put("specular_roughness", np.sqrt(np.asarray(t.alpha, float)), "sqrt(alpha)", False, note)
-        put("specular_IOR", t.ior, "ior", False, note)
-        if float(np.asarray(t.clearcoat)) > 0:
-            put("coat", t.clearcoat, "clearcoat", False, note)
-            put("coat_roughness", np.sqrt(np.asarray(t.clearcoat_alpha, float)), "sqrt(clearcoat_alpha)", False, note)
-            put("coat_IOR", 1.5, "1.5", False, note)
-        notes = list(notes) + ["fidelity measured on the glTF BRDF that standard_surface approximates"] if fid else notes
-    doc.addMaterialNode("matfit", ss)
-    lib = standard_library()
-    vdoc = mx.createDocument()
-    vdoc.copyContentFrom(doc)
-    vdoc.importLibrary(lib)
-    ok, msg = vdoc.validate()
-    if not ok:  # a bug of this exporter, never the user's: say so
-        raise MatfitError(f"to_materialx: the document failed MaterialX validation: {msg}")
-    return ExportResult("mtlx", mx.writeToXmlString(doc), mapping, model if isinstance(model, Lambert) else t, fid, notes)
+def to_openpbr(model) -> ExportResult:
+    """A MaterialX document (text) with the ``open_pbr_surface`` (OpenPBR 1.1) of ``model``.
+
+    The same mapping as :func:`to_materialx`, to OpenPBR's names (``base_weight``,
+    ``base_metalness``, ``specular_weight``, ``specular_ior``, ``coat_weight``, ...); a thin film
+    becomes ``thin_film_weight``, ``thin_film_thickness`` (in micrometres) and ``thin_film_ior``.
+
+    Parameters
+    ----------
+    model : matfit.models.AbstractBSDF
+        As for :func:`to_materialx`.
+
+    Returns
+    -------
+    ExportResult
+        ``content`` is the ``.mtlx`` XML text, validated against MaterialX's libraries.
+
+    Raises
+    ------
+    MatfitError
+        The ``materialx`` package is missing; a :class:`~matfit.errors.ParameterError` for a
+        model glTF cannot represent.
+
+    Examples
+    --------
+    >>> from matfit.models import Lambert
+    >>> r = to_openpbr(Lambert([0.5, 0.4, 0.3]))
+    >>> 'open_pbr_surface' in r.content, r.exact
+    (True, True)
+    """
+    return _surface_document(model, "open_pbr_surface", "to_openpbr", "openpbr")

@@ -197,7 +197,7 @@ class ExportResult:
     Attributes
     ----------
     target : str
-        ``"mitsuba"``, ``"mitsuba-xml"``, ``"pbrt"``, ``"gltf"`` or ``"mtlx"``.
+        ``"mitsuba"``, ``"mitsuba-xml"``, ``"pbrt"``, ``"gltf"``, ``"mtlx"`` or ``"openpbr"``.
     content : dict or str
         The document: a Mitsuba ``load_dict`` dict, a glTF JSON dict, or text (Mitsuba XML,
         pbrt-v4 scene lines, a MaterialX document).
