@@ -33,6 +33,7 @@ CHECK_TIER = {
     "test_fit_measured.py": ("test_split_is_the_documented_disjoint_80_20_split", "test_padding_fixes_the_shape_and_changes_no_fit"),
     "test_fresnel.py": ("test_average_vs_quadrature", "test_dielectric_inside_vs_colour"),
     "test_thin_film.py": ("test_spectrum_matches_the_characteristic_matrix", "test_bad_parameters_raise"),
+    "test_sheen.py": ("test_eval_matches_reference", "test_bad_parameters_raise"),
     "test_hard_cases.py": ("test_smooth_dielectric_total_internal_reflection", "test_blinn_phong_alpha_above_one_raises",
                            "test_property_rough_conductor"),
     "test_io_alta.py": ("test_minimal_cos_th", "test_pink_felt_slice"),

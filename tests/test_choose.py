@@ -42,7 +42,9 @@ def test_grazing_excess_names_sheen_only_where_the_backward_rows_show_it():
     both = _missing({"grazing_excess": True, "grazing_ratio": 3.0, "grazing_back_ratio": 2 * line})
     forward = _missing({"grazing_excess": True, "grazing_ratio": 3.0, "grazing_back_ratio": 0.5})
     unknown = _missing({"grazing_excess": True, "grazing_ratio": 3.0, "grazing_back_ratio": float("nan")})
-    assert "sheen lobe)" in both[0] and "backward as well" in both[0]
+    # backward as well as forward: a sheen, which the sheen family carries (a candidate, not missing)
+    assert both == [] and "sheen" in candidates_for({"grazing_excess": True, "grazing_back_ratio": 2 * line})
+    assert "sheen" not in candidates_for({"grazing_excess": True, "grazing_back_ratio": 0.5})
     assert "not a sheen lobe" in forward[0] and "forward grazing angles only" in forward[0]
     assert "no backward grazing rows" in unknown[0]
     assert _missing({"grazing_excess": False}) == []

@@ -17,8 +17,8 @@ r"""Which family: cheap cues of the data pick the candidates, the rendered image
    vector's azimuth in cells of :math:`\theta_h, \theta_d`, about a plane in those angles).
 2. **Candidates**: ``lambert``, ``plastic``, ``lobes1`` and ``lobes2`` always; ``lobes3`` with a
    second lobe; ``car_paint`` with a coloured highlight or a colour change; ``film`` (a thin-film
-   lobe) with a colour change; ``conductor`` with a coloured highlight or a dark floor (specular
-   ratio above 50).
+   lobe) with a colour change; ``sheen`` with a grazing excess that the backward rows show too;
+   ``conductor`` with a coloured highlight or a dark floor (specular ratio above 50).
 3. **Judge**: every candidate is fitted, rendered beside the measurement under each lighting of
    :data:`~matfit.appearance.JUDGE_LIGHTS` and scored by
    :math:`s = \max_\text{lights}\max(\text{FLIP}/0.05,\ \text{CIEDE2000}/1.5)`: :math:`s \le 1`
@@ -230,6 +230,8 @@ def candidates_for(cues):
         out["car_paint"] = "a coloured highlight" if cues.get("coloured_highlight") else "colour changes with angle"
     if cues.get("colour_shift"):
         out["film"] = "the highlight's hue turns with angle (a thin film)"
+    if _backward_grazing(cues):
+        out["sheen"] = "an excess at grazing angles, backward as well as forward (a sheen)"
     if cues.get("dark_floor") or cues.get("coloured_highlight"):
         out["conductor"] = "a dark floor under a strong peak" if cues.get("dark_floor") else "a coloured highlight"
     from .params import FAMILIES, Parametrization
@@ -237,9 +239,9 @@ def candidates_for(cues):
     return dict(sorted(out.items(), key=lambda kv: Parametrization(kv[0], 3).size if kv[0] in FAMILIES else 0))
 
 
-#: What a cue says no registered family carries.
-_MISSING = {"grazing_excess": "an excess at grazing angles, backward as well as forward (a sheen lobe)",
-            "azimuthal": "an azimuthal dependence (anisotropy)"}
+#: What a cue says no registered family carries (a grazing excess backward as well as forward
+#: is the sheen family's).
+_MISSING = {"grazing_excess": "", "azimuthal": "an azimuthal dependence (anisotropy)"}
 #: The grazing excess when the backward grazing rows show none, or the table holds none.
 _FORWARD_GRAZING = {
     "none": "an excess at forward grazing angles only (a grazing Fresnel rise or a wide forward lobe; no backward "
@@ -248,14 +250,21 @@ _FORWARD_GRAZING = {
                "the table holds no backward grazing rows to tell them apart)"}
 
 
+def _backward_grazing(cues):
+    """A grazing excess that the backward grazing rows show too: a sheen."""
+    return bool(cues.get("grazing_excess")) and cues.get("grazing_back_ratio", np.nan) > CUE_LINES["grazing_excess"]
+
+
 def _missing(cues):
     """What the cues see that no registered family carries (one phrase each)."""
     out = []
     for k, text in _MISSING.items():
         if not cues.get(k):
             continue
-        back = cues.get("grazing_back_ratio", np.nan)
-        if k == "grazing_excess" and not back > CUE_LINES["grazing_excess"]:
+        if k == "grazing_excess":
+            if _backward_grazing(cues):
+                continue  # the sheen family carries it
+            back = cues.get("grazing_back_ratio", np.nan)
             text = _FORWARD_GRAZING["none" if np.isfinite(back) else "unknown"]
         out.append(text)
     return out

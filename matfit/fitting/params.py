@@ -20,7 +20,7 @@ import numpy as np
 from ..errors import ParameterError
 from ._compose import MAX_ROWS, METAL_ETA_RANGE, METAL_K_RANGE, Lobe, LobeRefine, LobeSpec, lobe_layout
 from ._conductor_guess import refine_conductor
-from ..models import CoatedConductor, DiffuseSpecular, Lambert, Plastic, RoughConductor, RoughDielectric
+from ..models import CoatedConductor, DiffuseSpecular, Lambert, Plastic, RoughConductor, RoughDielectric, Sheen
 
 __all__ = ["Param", "TruthMap", "Family", "FAMILIES", "family_describing", "get_family", "check_solver_options", "Parametrization",
            "Lobe", "compose_family"]
@@ -511,6 +511,12 @@ FAMILIES: dict[str, Family] = {
          Param("eta_coat", 1.05, 2.5, False, "coat index", generic=1.5)),
         lambda p, C: CoatedConductor(p["alpha_base"], p["eta_base"], p["k_base"], p["alpha_coat"], p["eta_coat"]),
         "rough metal under a rough clear coat", truth=TruthMap("CoatedConductor")),
+    "sheen": Family(
+        "sheen",
+        (_ALBEDO, Param("sheen_color", 0.0, 1.0, True, "sheen colour", generic=0.5, physical=(True, True)),
+         Param("sheen_alpha", 0.05, 1.0, False, "sheen width (Charlie)", generic=0.4)),
+        lambda p, C: Sheen(Lambert(p["albedo"]), p["sheen_color"], p["sheen_alpha"]),
+        "Lambertian albedo under a Charlie sheen lobe (cloth, velvet; the base scaled to keep energy)"),
     "diffuse_specular": Family(
         "diffuse_specular",
         (_ALBEDO, Param("f0", 0.0, 1.0, True, "specular F0 (Schlick)", physical=(True, True)), _alpha("GGX width")),

@@ -13,6 +13,7 @@ from .multi_lobe import MultiLobe, SpecularLobe
 from .plastic import Plastic
 from .rough_conductor import RoughConductor
 from .rough_dielectric import RoughDielectric
+from .sheen import Sheen, sheen_albedo
 from .smooth_conductor import SmoothConductor
 from .smooth_dielectric import SmoothDielectric
 from .stochastic_layered import StochasticLayered
@@ -39,6 +40,8 @@ __all__ = [
     "SpecularLobe",
     "RoughConductor",
     "RoughDielectric",
+    "Sheen",
+    "sheen_albedo",
     "SmoothConductor",
     "SmoothDielectric",
     "TabulatedMicrofacet",
