@@ -14,7 +14,7 @@ import numpy_ref as R
 from matfit.errors import DataFormatError, ParameterError
 from matfit.export import (describe_model, export, load_model, model_from_description, relative_rmse, save_model, to_gltf,
                            to_materialx, to_mitsuba, to_mitsuba_xml, to_openpbr, to_pbrt)
-from matfit.models import (Blend, CoatedConductor, GltfPBR, Lambert, Plastic, RoughConductor, RoughDielectric,
+from matfit.models import (Blend, CoatedConductor, GltfPBR, Lambert, Plastic, RoughConductor, RoughDielectric, Sheen,
                            SmoothConductor, SmoothDielectric)
 
 GOLD = ([0.143, 0.374, 1.442], [3.983, 2.385, 1.603])
@@ -230,17 +230,19 @@ def test_gltf_approximates_a_conductor_by_a_fitted_metal():
 _MX_MODELS = {"lambert": lambda: Lambert([0.5, 0.4, 0.3]),
               "gltf": lambda: GltfPBR([0.8, 0.5, 0.2], 1.0, 0.09, clearcoat=1.0),
               "gltf-film": lambda: GltfPBR([0.1, 0.1, 0.1], 0.0, 0.09, iridescence=1.0, iridescence_ior=1.9,
-                                           iridescence_thickness=320.0)}
-#: exporter, shader category, thin-film thickness per nm, the thin film's weight input (or None)
-_MX_SURFACES = {"standard_surface": (to_materialx, "standard_surface", 1.0, None),
-                "openpbr": (to_openpbr, "open_pbr_surface", 1e-3, "thin_film_weight")}
+                                           iridescence_thickness=320.0),
+              "sheen": lambda: Sheen(Lambert([0.3, 0.05, 0.1]), [0.9, 0.4, 0.5], 0.36)}
+#: exporter, shader category, thin-film thickness per nm, the thin film's weight input (or None),
+#: the sheen's inputs
+_MX_SURFACES = {"standard_surface": (to_materialx, "standard_surface", 1.0, None, "sheen"),
+                "openpbr": (to_openpbr, "open_pbr_surface", 1e-3, "thin_film_weight", "fuzz")}
 
 
 @pytest.mark.parametrize("surface", list(_MX_SURFACES))
 @pytest.mark.parametrize("name", list(_MX_MODELS))
 def test_materialx_documents_pass_materialx_validation(name, surface):
     mx = pytest.importorskip("MaterialX", reason="materialx not installed (pip install materialx)")
-    exporter, category, per_nm, weight = _MX_SURFACES[surface]
+    exporter, category, per_nm, weight, sheen = _MX_SURFACES[surface]
     model = _MX_MODELS[name]()
     r = exporter(model)
     doc = mx.createDocument()
@@ -263,6 +265,26 @@ def test_materialx_documents_pass_materialx_validation(name, surface):
             assert shader.getInputValue(weight) == pytest.approx(1.0)
     else:
         assert shader.getInput("thin_film_thickness") is None
+    if name == "sheen":  # the sheen colour, and roughness sqrt(alpha)
+        assert shader.getInputValue(f"{sheen}_roughness") == pytest.approx(0.6)
+        assert list(shader.getInputValue(f"{sheen}_color")) == pytest.approx([0.9, 0.4, 0.5])
+        assert shader.getInputValue("base_color") is not None and not r.exact
+
+
+def test_gltf_maps_a_sheen_over_lambert_exactly(x64):
+    pygltflib = pytest.importorskip("pygltflib", reason="pygltflib not installed")
+    model = Sheen(Lambert([0.3, 0.05, 0.1]), [0.9, 0.4, 0.5], 0.36)
+    r = to_gltf(model)
+    g = pygltflib.GLTF2().from_json(json.dumps(r.content))
+    ext = g.materials[0].extensions["KHR_materials_sheen"]
+    assert r.exact and "KHR_materials_sheen" in g.extensionsUsed
+    assert ext["sheenRoughnessFactor"] == pytest.approx(0.6) and ext["sheenColorFactor"] == pytest.approx([0.9, 0.4, 0.5])
+    wo, wi = _pairs(200)
+    np.testing.assert_allclose(np.asarray(r.model.eval(jnp.asarray(wo), jnp.asarray(wi))),
+                               np.asarray(model.eval(jnp.asarray(wo), jnp.asarray(wi))), rtol=1e-6, atol=1e-12)
+    # a sheen over a fitted base: the sheen exact, the base fitted, the fidelity measured
+    gold = to_gltf(Sheen(RoughConductor(0.2, *GOLD), 0.5, 0.5))
+    assert not gold.exact and gold.fidelity is not None and "KHR_materials_sheen" in gold.content["extensionsUsed"]
 
 
 # -- pbrt-v4 ----------------------------------------------------------------------------------

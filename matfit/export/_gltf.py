@@ -8,7 +8,9 @@ a conductor by a metal (F0 colour and roughness: Schlick's Fresnel cannot follow
 index), a plastic by a dielectric (base colour, roughness, ior), a coated metal by a metal under
 the clear coat, a model with a thin-film lobe (:class:`~matfit.models.MultiLobe`) by an
 iridescent dielectric (base colour, roughness, ior, the film's index and thickness, started from
-the film lobe's), anything else by the general metallic-roughness material.
+the film lobe's), anything else by the general metallic-roughness material. A
+:class:`~matfit.models.Sheen` is KHR_materials_sheen over its base's glTF material: the sheen
+maps exactly (colour, ``sheenRoughnessFactor = sqrt(alpha)``), the base as it does alone.
 
 Roughness: ``roughnessFactor = sqrt(alpha)`` (glTF squares it), likewise for the clear coat.
 """
@@ -22,12 +24,13 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..fresnel import FILM_ETA_RANGE, FILM_THICKNESS_RANGE, fresnel_conductor
-from ..models import GltfPBR, Lambert, Layered, MultiLobe, Plastic, RoughConductor, SmoothConductor
+from ..models import GltfPBR, Lambert, Layered, MultiLobe, Plastic, RoughConductor, Sheen, SmoothConductor
 from ._model_file import plain_numbers
 from ._fidelity import fit_target, measure
 from ._result import ExportResult, ParamMapping, check_model, rgb
 
-EXTENSIONS = ("KHR_materials_ior", "KHR_materials_specular", "KHR_materials_clearcoat", "KHR_materials_iridescence")
+EXTENSIONS = ("KHR_materials_ior", "KHR_materials_specular", "KHR_materials_clearcoat", "KHR_materials_iridescence",
+              "KHR_materials_sheen")
 
 
 def _rgb(x):
@@ -96,8 +99,14 @@ def _plan(model):
     return fam["general"], None
 
 
-def gltf_parameters(m: GltfPBR):
-    """The glTF material dict of a :class:`~matfit.models.GltfPBR` (exact)."""
+def gltf_parameters(m):
+    """The glTF material dict of a :class:`~matfit.models.GltfPBR`, or of a
+    :class:`~matfit.models.Sheen` over one (KHR_materials_sheen), exact."""
+    if isinstance(m, Sheen):
+        mat = gltf_parameters(m.base)
+        mat["extensions"]["KHR_materials_sheen"] = {"sheenColorFactor": _rgb(m.color),
+                                                    "sheenRoughnessFactor": float(np.sqrt(_f(m.alpha)))}
+        return mat
     pbr = {"baseColorFactor": _rgb(m.base_color) + [1.0], "metallicFactor": _f(m.metallic),
            "roughnessFactor": float(np.sqrt(_f(m.alpha)))}
     ext = {"KHR_materials_ior": {"ior": _f(m.ior)},
@@ -134,13 +143,24 @@ def _mapping(mat, source, exact, note=""):
                 ParamMapping("KHR_materials_iridescence.iridescenceThicknessMaximum", c["iridescenceThicknessMaximum"],
                              source.get("iridescence_thickness", "iridescence_thickness (nm; minimum the same)"),
                              exact, note)]
+    if "KHR_materials_sheen" in ext:
+        c = ext["KHR_materials_sheen"]
+        out += [ParamMapping("KHR_materials_sheen.sheenColorFactor", c["sheenColorFactor"], "sheen color", exact, note),
+                ParamMapping("KHR_materials_sheen.sheenRoughnessFactor", c["sheenRoughnessFactor"], "sqrt(sheen alpha)",
+                             exact, note)]
     return out
 
 
 def gltf_target(model):
-    """``(GltfPBR, exact, fidelity, notes)``: the glTF BRDF that stands for ``model``."""
+    """``(GltfPBR or Sheen over one, exact, fidelity, notes)``: the glTF BRDF that stands for ``model``."""
     if isinstance(model, GltfPBR):
         return model, True, None, []
+    if isinstance(model, Sheen):
+        # KHR_materials_sheen is this model over the glTF BRDF: the sheen maps exactly, the base
+        # as the base does
+        base, exact, _, notes = gltf_target(model.base)
+        t = Sheen(base, model.color, model.alpha)
+        return t, exact, None if exact else measure(model, t), notes
     if isinstance(model, Lambert):
         return GltfPBR(_rgb(model.reflectance), 0.0, 1.0, specular=0.0), True, None, []
     if isinstance(model, SmoothConductor):
@@ -191,7 +211,8 @@ def to_gltf(model) -> ExportResult:
     mat = gltf_parameters(t)
     used = sorted(mat["extensions"])
     doc = {"asset": {"version": "2.0", "generator": "matfit"}, "extensionsUsed": used, "materials": [mat]}
-    src = {"base": "albedo", "metallic": "0", "specular": "0 (no specular layer)"} if isinstance(model, Lambert) else (
+    lambert = isinstance(model, Lambert) or (isinstance(model, Sheen) and isinstance(model.base, Lambert))
+    src = {"base": "albedo", "metallic": "0", "specular": "0 (no specular layer)"} if lambert else (
         {} if exact else {k: "fitted" for k in ("base", "metallic", "alpha", "ior", "specular", "iridescence_ior",
                                                 "iridescence_thickness")})
     mapping = _mapping(mat, src, exact, "" if exact else "fitted to the model over the hemisphere")

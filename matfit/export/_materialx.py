@@ -5,8 +5,9 @@ A Lambertian model maps exactly (``base`` 1, ``base_color`` = albedo, ``specular
 ``diffuse_roughness`` 0). Every other model goes through the glTF BRDF fitted to it
 (:mod:`matfit.export._gltf`), whose parameters standard_surface shares: ``base_color``,
 ``metalness``, ``specular``, ``specular_color``, ``specular_roughness = sqrt(alpha)``,
-``specular_IOR``, ``coat``, ``coat_roughness``, ``coat_IOR = 1.5`` and, for a thin film,
-``thin_film_thickness`` (nm) and ``thin_film_IOR``. standard_surface layers its
+``specular_IOR``, ``coat``, ``coat_roughness``, ``coat_IOR = 1.5``, for a thin film
+``thin_film_thickness`` (nm) and ``thin_film_IOR``, and for a :class:`~matfit.models.Sheen`
+``sheen`` 1, ``sheen_color``, ``sheen_roughness = sqrt(alpha)`` (OpenPBR: ``fuzz_*``). standard_surface layers its
 lobes with its own energy-conserving albedo scaling and its metal Fresnel from the artistic
 (F0, edge colour) parametrization, so those mappings are approximate; the fidelity reported is
 that of the glTF BRDF.
@@ -17,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import MatfitError
-from ..models import GltfPBR, Lambert
+from ..models import GltfPBR, Lambert, Sheen
 from ._gltf import gltf_target
 from ._model_file import plain_numbers
 from ._result import ExportResult, ParamMapping, check_model, rgb
@@ -58,12 +59,14 @@ SURFACES = {
                              metalness="metalness", specular="specular", specular_color="specular_color",
                              specular_roughness="specular_roughness", specular_ior="specular_IOR", coat="coat",
                              coat_roughness="coat_roughness", coat_ior="coat_IOR", thin_film_weight=None,
-                             thin_film_thickness="thin_film_thickness", thin_film_ior="thin_film_IOR", per_nm=1.0),
+                             thin_film_thickness="thin_film_thickness", thin_film_ior="thin_film_IOR", per_nm=1.0,
+                             sheen="sheen", sheen_color="sheen_color", sheen_roughness="sheen_roughness"),
     "open_pbr_surface": dict(base="base_weight", base_color="base_color", diffuse_roughness="base_diffuse_roughness",
                              metalness="base_metalness", specular="specular_weight", specular_color="specular_color",
                              specular_roughness="specular_roughness", specular_ior="specular_ior", coat="coat_weight",
                              coat_roughness="coat_roughness", coat_ior="coat_ior", thin_film_weight="thin_film_weight",
-                             thin_film_thickness="thin_film_thickness", thin_film_ior="thin_film_ior", per_nm=1e-3),
+                             thin_film_thickness="thin_film_thickness", thin_film_ior="thin_film_ior", per_nm=1e-3,
+                             sheen="fuzz_weight", sheen_color="fuzz_color", sheen_roughness="fuzz_roughness"),
 }
 
 
@@ -84,11 +87,15 @@ def _surface_document(model, surface, owner, fmt):
             ss.setInputValue(names[key], float(v))
         mapping.append(ParamMapping(names[key], v, source, exact, note))
 
+    sheen = None
+    if isinstance(model, Sheen):  # the shader's sheen (OpenPBR: fuzz) over the base's mapping
+        sheen, model = model, model.base
     if isinstance(model, Lambert):
         put("base", 1.0, "1", True)
         put("base_color", rgb(owner, model.reflectance), "albedo", True)
         put("diffuse_roughness", 0.0, "0 (Lambert)", True)
         put("specular", 0.0, "0 (no specular layer)", True)
+        t = model
     else:
         t, exact, fid, notes = gltf_target(model)
         note = f"{surface}'s layering and metal Fresnel differ from the glTF BRDF fitted to the model"
@@ -114,6 +121,14 @@ def _surface_document(model, surface, owner, fmt):
                 f"iridescence_thickness ({unit})", False, note)
             put("thin_film_ior", t.iridescence_ior, "iridescence_ior", False, note)
         notes = list(notes) + [f"fidelity measured on the glTF BRDF that {surface} approximates"] if fid else notes
+    if sheen is not None:
+        note = (f"{surface}'s sheen is its own lobe (standard_surface: Estevez & Kulla's; OpenPBR's fuzz: an LTC "
+                "fit, Zeltner et al. 2022), layered with its own albedo scaling")
+        put("sheen", 1.0, "1", False, note)
+        put("sheen_color", rgb(owner, sheen.color), "sheen color", False, note)
+        put("sheen_roughness", np.sqrt(np.asarray(sheen.alpha, float)), "sqrt(sheen alpha)", False, note)
+        t = Sheen(t, sheen.color, sheen.alpha)
+        model = sheen
     doc.addMaterialNode("matfit", ss)
     lib = standard_library()
     vdoc = mx.createDocument()
@@ -122,7 +137,7 @@ def _surface_document(model, surface, owner, fmt):
     ok, msg = vdoc.validate()
     if not ok:  # a bug of this exporter, never the user's: say so
         raise MatfitError(f"{owner}: the document failed MaterialX validation: {msg}")
-    return ExportResult(fmt, mx.writeToXmlString(doc), mapping, model if isinstance(model, Lambert) else t, fid, notes)
+    return ExportResult(fmt, mx.writeToXmlString(doc), mapping, t, fid, notes)
 
 
 def to_materialx(model) -> ExportResult:

@@ -161,7 +161,7 @@ class Sheen(AbstractBSDF):
     >>> import jax.numpy as jnp
     >>> from matfit.models import Lambert, Sheen
     >>> velvet = Sheen(Lambert([0.3, 0.05, 0.1]), [0.9, 0.4, 0.5], 0.3)
-    >>> wo = jnp.array([0.0, 0.98, 0.2]); wi = jnp.array([0.0, 0.6, 0.8])
+    >>> wo = jnp.array([0.0, 0.98, 0.2]) / jnp.hypot(0.98, 0.2); wi = jnp.array([0.0, 0.6, 0.8])
     >>> bool(velvet.eval(wo, wi)[0] > Lambert(0.3).eval(wo, wi)[0])  # brighter than its base near grazing
     True
     """
