@@ -511,12 +511,6 @@ FAMILIES: dict[str, Family] = {
          Param("eta_coat", 1.05, 2.5, False, "coat index", generic=1.5)),
         lambda p, C: CoatedConductor(p["alpha_base"], p["eta_base"], p["k_base"], p["alpha_coat"], p["eta_coat"]),
         "rough metal under a rough clear coat", truth=TruthMap("CoatedConductor")),
-    "sheen": Family(
-        "sheen",
-        (_ALBEDO, Param("sheen_color", 0.0, 1.0, True, "sheen colour", generic=0.5, physical=(True, True)),
-         Param("sheen_alpha", 0.05, 1.0, False, "sheen width (Charlie)", generic=0.4)),
-        lambda p, C: Sheen(Lambert(p["albedo"]), p["sheen_color"], p["sheen_alpha"]),
-        "Lambertian albedo under a Charlie sheen lobe (cloth, velvet; the base scaled to keep energy)"),
     "diffuse_specular": Family(
         "diffuse_specular",
         (_ALBEDO, Param("f0", 0.0, 1.0, True, "specular F0 (Schlick)", physical=(True, True)), _alpha("GGX width")),
@@ -975,6 +969,13 @@ FAMILIES.update({
         doc=f"Lambertian albedo plus {K} GGX lobe{'s' if K > 1 else ''} (per-channel weights ks, one Schlick F0"
             f"{', widths ordered' if K > 1 else ''})")
     for K in (1, 2, 3)})
+# cloth and velvet: a Lambertian base under a Charlie sheen lobe
+FAMILIES["sheen"] = Family(
+    "sheen",
+    (_ALBEDO, Param("sheen_color", 0.0, 1.0, True, "sheen colour", generic=0.5, physical=(True, True)),
+     Param("sheen_alpha", 0.05, 1.0, False, "sheen width (Charlie)", generic=0.4)),
+    lambda p, C: Sheen(Lambert(p["albedo"]), p["sheen_color"], p["sheen_alpha"]),
+    "Lambertian albedo under a Charlie sheen lobe (cloth, velvet; the base scaled to keep energy)")
 # a highlight whose hue turns with the angle: a GGX lobe whose Fresnel is a thin film (one weight,
 # the colour is the film's) over a wide coloured GGX lobe (Schlick, per-channel weight) in place of a
 # Lambertian base (the colour-shifting films of the RGL set are dark at grazing angles)
