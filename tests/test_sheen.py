@@ -214,3 +214,13 @@ def test_sheen_family_recovers_a_velvet_and_the_cues_call_for_it(x64, rng):
     for name in truth:
         np.testing.assert_allclose(np.ravel(r.params[name]), np.ravel(truth[name]), rtol=0.03, err_msg=name)
     assert r.converged
+
+
+def test_model_file_round_trip(x64, rng):
+    from matfit.export import describe_model, model_from_description
+
+    m = Sheen(RoughConductor(j(0.3), j(C.GOLD_ETA), j(C.GOLD_K)), j(COLOR), j(0.45))
+    back = model_from_description(describe_model(m))
+    wo, wi = C.random_pairs(rng, 50, 0.05)
+    assert type(back) is Sheen and type(back.base) is RoughConductor
+    np.testing.assert_allclose(np.asarray(back.eval(j(wo), j(wi))), np.asarray(m.eval(j(wo), j(wi))), rtol=1e-12)

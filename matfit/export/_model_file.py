@@ -29,7 +29,7 @@ FORMAT_VERSION = 1
 #: The classes a model document may name.
 MODEL_CLASSES = {name: getattr(_models, name) for name in (
     "Lambert", "RoughConductor", "SmoothConductor", "RoughDielectric", "SmoothDielectric", "Plastic", "Layered",
-    "Blend", "StochasticLayered", "GltfPBR", "DiffuseSpecular", "TabulatedMicrofacet", "MultiLobe", "SpecularLobe")}
+    "Blend", "StochasticLayered", "GltfPBR", "DiffuseSpecular", "TabulatedMicrofacet", "MultiLobe", "SpecularLobe", "Sheen")}
 #: The fields of a tabulated distribution's description (:class:`~matfit.microfacet.TabulatedNDF`'s arguments).
 NDF_FIELDS = ("theta", "d", "n_lambda")
 

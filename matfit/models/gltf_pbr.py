@@ -41,7 +41,6 @@ References
 from __future__ import annotations
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 
 from .._math import COS_EPS, cosine_hemisphere, normalize, safe_div
@@ -110,6 +109,10 @@ class GltfPBR(AbstractBSDF):
     iridescence_ior: jnp.ndarray
     iridescence_thickness: jnp.ndarray
     masking: str = eqx.field(static=True)
+    # whether the film is evaluated at all: a static choice at construction (an iridescence
+    # factor given as anything but the number 0), so that a glTF material without the extension
+    # never pays for the 81-wavelength film, traced or not
+    has_film: bool = eqx.field(static=True)
 
     def __init__(self, base_color, metallic=0.0, alpha=0.25, ior=1.5, specular=1.0, specular_color=1.0, clearcoat=0.0,
                  clearcoat_alpha=0.01, masking="height_correlated", iridescence=0.0, iridescence_ior=1.3,
@@ -135,6 +138,8 @@ class GltfPBR(AbstractBSDF):
         self.specular_color = specular_color
         self.clearcoat = as_param(clearcoat)
         self.clearcoat_alpha = as_param(clearcoat_alpha)
+        self.has_film = not (isinstance(iridescence, (int, float)) and not isinstance(iridescence, bool)
+                             and iridescence == 0)
         self.iridescence = as_param(iridescence)
         self.iridescence_ior = as_param(iridescence_ior)
         self.iridescence_thickness = as_param(iridescence_thickness)
@@ -158,8 +163,7 @@ class GltfPBR(AbstractBSDF):
         f0 = ((self.ior - 1) / (self.ior + 1)) ** 2
         ws = self.specular[..., None]
         Fd = fresnel_schlick(vh, jnp.minimum(f0[..., None] * self.specular_color, 1) * ws, ws)
-        if not (isinstance(self.iridescence, jnp.ndarray) and self.iridescence.shape == () and
-                not isinstance(self.iridescence, jax.core.Tracer) and float(self.iridescence) == 0.0):
+        if self.has_film:
             # KHR_materials_iridescence: the dielectric's Fresnel mixed with the film's (3 channels)
             wi_ = self.iridescence[..., None]
             film = fresnel_thin_film(vh[..., 0], self.iridescence_thickness[..., None], self.iridescence_ior[..., None],
