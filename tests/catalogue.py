@@ -370,3 +370,29 @@ def smooth_dielectric_pairs(rng, eta, dist, n=40):
     k = min(n // 2, int(refl.sum()), int((~refl).sum()))
     assert k >= 8
     return np.concatenate([wo[refl][:k], wo[~refl][:k]]), np.concatenate([wi[refl][:k], wi[~refl][:k]])
+
+
+# ------------------------------------------------------------------------------------------------
+# Finite differences
+# ------------------------------------------------------------------------------------------------
+def check_leaf_gradients(loss, grads, params, rtol, h=1e-6):
+    """Compare ``grads`` (the gradient pytree of ``loss`` at ``params``) with central finite
+    differences of ``loss``, every element of every leaf (step ``h`` relative, at least absolute);
+    returns the number of elements checked. Fails naming the leaf, the element and both values."""
+    import jax
+
+    leaves, tree = jax.tree_util.tree_flatten(params)
+    checked = 0
+    for i, (leaf, g) in enumerate(zip(leaves, jax.tree_util.tree_leaves(grads))):
+        for idx in np.ndindex(leaf.shape):
+            step = h * max(1.0, abs(float(leaf[idx])))
+
+            def at(d, i=i, idx=idx, leaf=leaf):
+                new = list(leaves)
+                new[i] = leaf.at[idx].add(d)
+                return float(loss(jax.tree_util.tree_unflatten(tree, new)))
+
+            fd = (at(step) - at(-step)) / (2 * step)
+            assert abs(float(g[idx]) - fd) <= rtol * max(1.0, abs(fd)), (i, idx, float(g[idx]), fd)
+            checked += 1
+    return checked

@@ -180,18 +180,12 @@ def to_openpbr(model) -> ExportResult:
     Parameters
     ----------
     model : matfit.models.AbstractBSDF
-        As for :func:`to_materialx`.
+        As for :func:`to_materialx` (which names the errors raised).
 
     Returns
     -------
     ExportResult
         ``content`` is the ``.mtlx`` XML text, validated against MaterialX's libraries.
-
-    Raises
-    ------
-    MatfitError
-        The ``materialx`` package is missing; a :class:`~matfit.errors.ParameterError` for a
-        model glTF cannot represent.
 
     Examples
     --------
