@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._math import refracted_cos2, safe_div, safe_sqrt, sq
+from ._math import COS_EPS, refracted_cos2, safe_div, safe_sqrt, sq
 from ._check import check_range
 from .errors import ParameterError
 
@@ -399,19 +399,28 @@ def thin_film_spectrum(cos_theta_i, thickness, eta_film, eta_base, wavelengths):
     >>> round(float(q[0]), 4)  # ((1.5 - 1.38^2) / (1.5 + 1.38^2))^2: an anti-reflection layer
     0.0141
     """
-    check_range("thin_film_spectrum", "thickness", thickness, 0.0)
-    check_range("thin_film_spectrum", "eta_film", eta_film, 1.0)
-    check_range("thin_film_spectrum", "eta_base", eta_base, 1.0)
+    _check_film("thin_film_spectrum", thickness, eta_film, eta_base)
     half, pols = _film_terms(cos_theta_i, thickness, eta_film, eta_base)
-    sin2_half = sq(jnp.sin(half[..., None] / jnp.asarray(wavelengths)))
-    return jnp.clip(0.5 * sum(_airy(tuple(x[..., None] for x in pol), sin2_half) for pol in pols), 0.0, 1.0)
+    return _film_reflectance(half[..., None], tuple(tuple(x[..., None] for x in pol) for pol in pols),
+                             1 / jnp.asarray(wavelengths))
+
+
+def _check_film(owner, thickness, eta_film, eta_base):
+    """The film's ranges: thickness >= 0, indices >= 1."""
+    check_range(owner, "thickness", thickness, 0.0)
+    check_range(owner, "eta_film", eta_film, 1.0)
+    check_range(owner, "eta_base", eta_base, 1.0)
+
+
+def _film_reflectance(half, pols, inv_lam):
+    """The unpolarized Airy reflectance at the wavelengths ``1 / inv_lam``, clamped to [0, 1]."""
+    sin2_half = sq(jnp.sin(half * inv_lam))
+    return jnp.clip(0.5 * sum(_airy(pol, sin2_half) for pol in pols), 0.0, 1.0)
 
 
 def _film_terms(cos_theta_i, thickness, eta_film, eta_base):
     """The wavelength-free terms of the Airy sum: half the phase's numerator, ``2 pi eta_f d c_1``
     (nm), and per polarization (s, p) ``((r01 + r12)^2, (1 + r01 r12)^2, 4 r01 r12)``."""
-    from ._math import COS_EPS
-
     c0 = jnp.clip(jnp.abs(jnp.asarray(cos_theta_i)), COS_EPS, 1.0)
     n1, n2, d = jnp.asarray(eta_film), jnp.asarray(eta_base), jnp.asarray(thickness)
     # c_j^2 = 1 - sin^2 / eta_j^2, written ((eta_j^2 - 1) + cos^2) / eta_j^2: exact for a layer of
@@ -477,9 +486,7 @@ def fresnel_thin_film(cos_theta_i, thickness, eta_film, eta_base=1.5):
     """
     from ._spectral import WAVELENGTHS, rgb_weights
 
-    check_range("fresnel_thin_film", "thickness", thickness, 0.0)
-    check_range("fresnel_thin_film", "eta_film", eta_film, 1.0)
-    check_range("fresnel_thin_film", "eta_base", eta_base, 1.0)
+    _check_film("fresnel_thin_film", thickness, eta_film, eta_base)
     args = [jnp.asarray(x) for x in (cos_theta_i, thickness, eta_film, eta_base)]
     dt = jnp.result_type(*args)
     dt = dt if jnp.issubdtype(dt, jnp.floating) else jnp.result_type(float)
@@ -491,9 +498,7 @@ def fresnel_thin_film(cos_theta_i, thickness, eta_film, eta_base=1.5):
     # a loop over the wavelengths, accumulating RGB: only the phase depends on the wavelength, and
     # no (..., 81) array is ever stored (a rendered sphere holds millions of direction pairs)
     def add(i, rgb):
-        sin2_half = sq(jnp.sin(half * inv_lam[i]))
-        R = 0.5 * sum(_airy(pol, sin2_half) for pol in pols)
-        return rgb + jnp.clip(R, 0.0, 1.0)[..., None] * w[i]
+        return rgb + _film_reflectance(half, pols, inv_lam[i])[..., None] * w[i]
 
     rgb = jax.lax.fori_loop(0, len(WAVELENGTHS), add, jnp.zeros(half.shape + (3,), dt))
     return jnp.clip(rgb, 0.0, 1.0)

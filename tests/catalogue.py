@@ -396,3 +396,18 @@ def check_leaf_gradients(loss, grads, params, rtol, h=1e-6):
             assert abs(float(g[idx]) - fd) <= rtol * max(1.0, abs(fd)), (i, idx, float(g[idx]), fd)
             checked += 1
     return checked
+
+
+def check_float32_eval_pdf_finite(model, wo, wi):
+    """``model.eval`` (float32) and ``pdf`` at the float32 pairs ``wo``, ``wi`` and their gradients
+    in every parameter of the model are finite."""
+    import equinox as eqx
+    import jax
+
+    assert model.eval(wo, wi).dtype == jnp.float32
+    params, static = eqx.partition(model, eqx.is_inexact_array)
+    for fn in (lambda p: eqx.combine(p, static).eval(wo, wi).sum(), lambda p: eqx.combine(p, static).pdf(wo, wi).sum()):
+        value, grads = jax.jit(jax.value_and_grad(fn))(params)
+        assert np.isfinite(float(value))
+        for leaf in jax.tree_util.tree_leaves(grads):
+            assert np.all(np.isfinite(np.asarray(leaf)))

@@ -167,13 +167,7 @@ def test_gradients_match_finite_differences(x64, rng):
 def test_float32_finite_at_special_pairs():
     wo, wi = (jnp.asarray(x, jnp.float32) for x in C.special_pairs())
     model = Sheen(Lambert(j(BASE, np.float32)), j(COLOR, np.float32), j(0.3, np.float32))
-    assert model.eval(wo, wi).dtype == jnp.float32
-    params, static = eqx.partition(model, eqx.is_inexact_array)
-    for fn in (lambda p: eqx.combine(p, static).eval(wo, wi).sum(), lambda p: eqx.combine(p, static).pdf(wo, wi).sum()):
-        value, grads = jax.jit(jax.value_and_grad(fn))(params)
-        assert np.isfinite(float(value))
-        for leaf in jax.tree_util.tree_leaves(grads):
-            assert np.all(np.isfinite(np.asarray(leaf)))
+    C.check_float32_eval_pdf_finite(model, wo, wi)
 
 
 @pytest.mark.parametrize("args, match", [

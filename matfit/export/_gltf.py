@@ -86,14 +86,14 @@ def _plan(model):
         return fam["coated_metal"], {"base_color": _f0(np.asarray(model.base.eta) * eta_c, np.asarray(model.base.k) * eta_c),
                                      "alpha": float(np.clip(np.asarray(model.base.alpha), 3e-3, 0.99)),
                                      "clearcoat_alpha": a_c}
-    films = [lb for lb in getattr(model, "lobes", ()) if lb.fresnel == "thin_film"] if isinstance(model, MultiLobe) else []
+    films = [lb for lb in model.lobes if lb.fresnel == "thin_film"] if isinstance(model, MultiLobe) else []
     if films:
         lb = films[0]
         return fam["iridescent"], {"base_color": np.clip(np.broadcast_to(np.asarray(model.diffuse), (3,)), 0.01, 0.99),
                                    "alpha": float(np.clip(_f(lb.alpha), 3e-3, 0.99)),
                                    "ior": float(np.clip(_f(lb.eta), 1.06, 2.9)),
-                                   "iridescence_ior": float(np.clip(_f(lb.film_eta), 1.0, 2.6)),
-                                   "iridescence_thickness": float(np.clip(_f(lb.thickness), 0.0, 1000.0))}
+                                   "iridescence_ior": float(np.clip(_f(lb.film_eta), *FILM_ETA_RANGE)),
+                                   "iridescence_thickness": float(np.clip(_f(lb.thickness), *FILM_THICKNESS_RANGE))}
     if model.has_delta_lobe or model.transmits:
         return None
     return fam["general"], None

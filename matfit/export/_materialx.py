@@ -87,39 +87,42 @@ def _surface_document(model, surface, owner, fmt):
             ss.setInputValue(names[key], float(v))
         mapping.append(ParamMapping(names[key], v, source, exact, note))
 
-    sheen = None
-    if isinstance(model, Sheen):  # the shader's sheen (OpenPBR: fuzz) over the base's mapping
-        sheen, model = model, model.base
-    if isinstance(model, Lambert):
+    # a Sheen: the shader's sheen (OpenPBR: fuzz) over its base's mapping
+    sheen = model if isinstance(model, Sheen) else None
+    inner = model.base if sheen else model
+    if isinstance(inner, Lambert):
         put("base", 1.0, "1", True)
-        put("base_color", rgb(owner, model.reflectance), "albedo", True)
+        put("base_color", rgb(owner, inner.reflectance), "albedo", True)
         put("diffuse_roughness", 0.0, "0 (Lambert)", True)
         put("specular", 0.0, "0 (no specular layer)", True)
         t = model
     else:
-        t, exact, fid, notes = gltf_target(model)
+        # the glTF stand-in of the whole model (a Sheen's: the sheen over its base's stand-in,
+        # its fidelity measured whole); the shader's base inputs read the glTF BRDF
+        t, _, fid, notes = gltf_target(model)
+        g = t.base if sheen else t
         note = f"{surface}'s layering and metal Fresnel differ from the glTF BRDF fitted to the model"
-        if isinstance(model, GltfPBR):
+        if isinstance(inner, GltfPBR):
             note = f"{surface}'s layering and metal Fresnel differ from the glTF BRDF"
         put("base", 1.0, "1", False, note)
-        put("base_color", rgb(owner, t.base_color), "base_color", False, note)
-        put("metalness", t.metallic, "metallic", False, note)
-        put("specular", t.specular, "specular", False, note)
-        put("specular_color", rgb(owner, t.specular_color), "specular_color", False, note)
-        put("specular_roughness", np.sqrt(np.asarray(t.alpha, float)), "sqrt(alpha)", False, note)
-        put("specular_ior", t.ior, "ior", False, note)
-        if float(np.asarray(t.clearcoat)) > 0:
-            put("coat", t.clearcoat, "clearcoat", False, note)
-            put("coat_roughness", np.sqrt(np.asarray(t.clearcoat_alpha, float)), "sqrt(clearcoat_alpha)", False, note)
+        put("base_color", rgb(owner, g.base_color), "base_color", False, note)
+        put("metalness", g.metallic, "metallic", False, note)
+        put("specular", g.specular, "specular", False, note)
+        put("specular_color", rgb(owner, g.specular_color), "specular_color", False, note)
+        put("specular_roughness", np.sqrt(np.asarray(g.alpha, float)), "sqrt(alpha)", False, note)
+        put("specular_ior", g.ior, "ior", False, note)
+        if float(np.asarray(g.clearcoat)) > 0:
+            put("coat", g.clearcoat, "clearcoat", False, note)
+            put("coat_roughness", np.sqrt(np.asarray(g.clearcoat_alpha, float)), "sqrt(clearcoat_alpha)", False, note)
             put("coat_ior", 1.5, "1.5", False, note)
-        if float(np.asarray(t.iridescence)) > 0:
+        if float(np.asarray(g.iridescence)) > 0:
             # the shader's thin film over the specular layer: the glTF iridescence's film
             if names["thin_film_weight"]:
-                put("thin_film_weight", t.iridescence, "iridescence", False, note)
+                put("thin_film_weight", g.iridescence, "iridescence", False, note)
             unit = "nm" if names["per_nm"] == 1.0 else "um"
-            put("thin_film_thickness", np.asarray(t.iridescence_thickness) * names["per_nm"],
+            put("thin_film_thickness", np.asarray(g.iridescence_thickness) * names["per_nm"],
                 f"iridescence_thickness ({unit})", False, note)
-            put("thin_film_ior", t.iridescence_ior, "iridescence_ior", False, note)
+            put("thin_film_ior", g.iridescence_ior, "iridescence_ior", False, note)
         notes = list(notes) + [f"fidelity measured on the glTF BRDF that {surface} approximates"] if fid else notes
     if sheen is not None:
         note = (f"{surface}'s sheen is its own lobe (standard_surface: Estevez & Kulla's; OpenPBR's fuzz: an LTC "
@@ -127,8 +130,6 @@ def _surface_document(model, surface, owner, fmt):
         put("sheen", 1.0, "1", False, note)
         put("sheen_color", rgb(owner, sheen.color), "sheen color", False, note)
         put("sheen_roughness", np.sqrt(np.asarray(sheen.alpha, float)), "sqrt(sheen alpha)", False, note)
-        t = Sheen(t, sheen.color, sheen.alpha)
-        model = sheen
     doc.addMaterialNode("matfit", ss)
     lib = standard_library()
     vdoc = mx.createDocument()

@@ -6,11 +6,10 @@ from .losses import LOSSES, residuals
 from .methods import DEFAULT_METHOD, Method, get_method
 from .params import FAMILIES, Family, Lobe, Param, Parametrization, TruthMap, compose_family, family_describing, get_family
 from ._compose import METAL_ETA_RANGE, METAL_K_RANGE
-from ._film_guess import highlight_hues
 
 __all__ = [
     "FAMILIES", "Family", "Param", "Parametrization", "TruthMap", "family_describing", "get_family", "Lobe",
-    "compose_family", "METAL_ETA_RANGE", "METAL_K_RANGE", "highlight_hues",
+    "compose_family", "METAL_ETA_RANGE", "METAL_K_RANGE",
     "LOSSES", "residuals", "DEFAULT_METHOD", "Method", "get_method",
     "METHODS", "FitError", "FitResult", "fit", "fit_batch", "initial_guess", "initial_guesses",
     "BatchFit", "fit_arrays", "guesses_from_arrays",
@@ -22,6 +21,6 @@ from .select import ModelComparison, compare_models, recommend, robust_fit  # no
 from ._history import loss_history  # noqa: E402
 
 __all__ += ["ModelComparison", "compare_models", "recommend", "robust_fit", "loss_history"]
-from ._choose import CHOICE_LOSS, Choice, appearance_cues, candidates_for, choose_family, fit  # noqa: E402
+from ._choose import CHOICE_LOSS, Choice, appearance_cues, candidates_for, choose_family, fit, highlight_hues  # noqa: E402
 
-__all__ += ["CHOICE_LOSS", "Choice", "appearance_cues", "candidates_for", "choose_family"]
+__all__ += ["CHOICE_LOSS", "Choice", "appearance_cues", "candidates_for", "choose_family", "highlight_hues"]

@@ -48,6 +48,7 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..table import Table
+from ._film_guess import BANDS, NEAR_DEGREES
 from ._result import FitError
 from .fit import fit as _fit_named
 
@@ -72,6 +73,50 @@ def _angles(table):
     ph_h = np.degrees(np.arctan2(h[:, 1], h[:, 0]))
     return th_h, th_d, ph_h, np.degrees(np.arccos(np.clip(wi[:, 2], -1, 1))), np.degrees(
         np.arccos(np.clip(wo[:, 2], -1, 1)))
+
+
+def highlight_hues(table, model=None):
+    """The hue (degrees, HSV) of the highlight per band of difference angle (``BANDS`` of the
+    film's start, ``matfit/fitting/_film_guess.py``): the mean RGB of the rows within
+    ``NEAR_DEGREES`` of the mirror direction, from the table's values or, given ``model``, from
+    the model's on the same rows. How a thin film shows in data: its hue turns from band to band;
+    a fit that carries the film turns with it.
+
+    Parameters
+    ----------
+    table : matfit.Table
+        An RGB table.
+    model : matfit.models.AbstractBSDF, optional
+        A model evaluated on the table's rows instead of the values.
+
+    Returns
+    -------
+    numpy.ndarray (4,)
+        Hue per band (NaN where a band has no rows or no colour).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit import Table
+    >>> from matfit.fitting import highlight_hues
+    >>> wo = np.array([[0.0, 0.1, 0.99]]); wo /= np.linalg.norm(wo)
+    >>> highlight_hues(Table(wo=wo, wi=wo * [1, -1, 1], values=[[1.0, 0.5, 0.0]])).round(1).tolist()  # orange
+    [30.0, nan, nan, nan]
+    """
+    import colorsys
+
+    import jax.numpy as jnp
+
+    th_h, th_d = _angles(table)[:2]
+    v = np.asarray(table.values, float) if model is None else np.asarray(
+        model.eval(jnp.asarray(table.wo), jnp.asarray(table.wi)))
+    out = np.full(len(BANDS), np.nan)
+    for i, (lo, hi) in enumerate(BANDS):
+        m = (th_h < NEAR_DEGREES) & (th_d >= lo) & (th_d < hi) & np.all(np.isfinite(v), axis=-1)
+        mean = v[m].mean(0) if m.any() else np.zeros(3)
+        if mean.max() > 0 and mean.max() > mean.min():
+            out[i] = colorsys.rgb_to_hsv(*(np.clip(mean, 0, None) / mean.max()))[0] * 360
+    return out
 
 
 def _chroma(v):
@@ -163,7 +208,7 @@ def appearance_cues(table):
             c["highlight_saturation"] = float((spec.max() - max(spec.min(), 0)) / spec.max())
             mirror = ok & (th_h <= lim)
             chrom = []
-            for a, b in ((0, 20), (20, 40), (40, 60), (60, 90)):
+            for a, b in BANDS:
                 m = mirror & (th_d >= a) & (th_d < b)
                 if m.sum() >= 3:
                     ex = np.median(y[m], 0) - base

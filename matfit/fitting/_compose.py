@@ -40,7 +40,7 @@ from ..fresnel import FILM_ETA_RANGE, FILM_THICKNESS_RANGE, fresnel_dielectric, 
 from ..microfacet import DISTRIBUTIONS, MASKING_FORMS
 from ..models import MultiLobe, SoAPairs, SpecularLobe
 from ..models.multi_lobe import FRESNEL_KINDS, FRESNEL_PARAMS
-from ._film_guess import film_candidates
+from ._film_guess import FILM_GENERIC, film_candidates
 
 __all__ = ["Lobe", "Slot", "LobeSpec", "LobeRefine", "lobe_layout", "WEIGHT_MODES", "SHAREABLE", "METAL_ETA_RANGE",
            "METAL_K_RANGE"]
@@ -154,11 +154,12 @@ def _fresnel_slot(kind, lobe, fresnel, per_channel, name, lobes):
     if kind == "eta" and fresnel == "dielectric":
         return Slot(name, kind, lobes, 1.01, 4.0, per_channel, "dielectric index", 1.5)
     if kind == "eta" and fresnel == "thin_film":
-        return Slot(name, kind, lobes, 1.01, 3.0, per_channel, "index under the film", 1.5)
+        return Slot(name, kind, lobes, 1.01, 3.0, per_channel, "index under the film", FILM_GENERIC["eta"])
     if kind == "thickness":
-        return Slot(name, kind, lobes, *FILM_THICKNESS_RANGE, per_channel, "film thickness (nm)", 300.0)
+        return Slot(name, kind, lobes, *FILM_THICKNESS_RANGE, per_channel, "film thickness (nm)",
+                    FILM_GENERIC["thickness"])
     if kind == "film_eta":
-        return Slot(name, kind, lobes, *FILM_ETA_RANGE, per_channel, "film index", 1.8)
+        return Slot(name, kind, lobes, *FILM_ETA_RANGE, per_channel, "film index", FILM_GENERIC["film_eta"])
     if kind == "eta":
         return Slot(name, kind, lobes, *METAL_ETA_RANGE, per_channel, "conductor real index", 1.0)
     return Slot(name, kind, lobes, *METAL_K_RANGE, per_channel, "conductor extinction", 3.0)
@@ -477,7 +478,7 @@ class LobeSpec:
         width_sets = self._width_candidates(alpha0, fixed)
         # D G2 / (4 cos cos) of every lobe at every candidate width: (G, B, N) per lobe
         dgs = [self._microfacet_factor(WO, WI, np.stack([ws[j] for ws in width_sets]), j) for j in range(K)]
-        film_levels = self._film_candidates(WO, WI, V, ok, cos_d, fixed)
+        film_levels = self._film_candidates(h, V, ok, cos_d, fixed)
         for g, width_set in enumerate(width_sets):
             dg = [d[g] for d in dgs]
             for level in self._fresnel_candidates(fixed, film_levels):
@@ -554,14 +555,14 @@ class LobeSpec:
                 out.append(ws)
         return out
 
-    def _film_candidates(self, WO, WI, V, ok, cos_d, fixed):
-        """The thin-film lobes' candidate films (:func:`film_candidates`): a list of dicts
-        ``{parameter name: (B,)}``, or ``[{}]`` without a thin-film lobe (or with its film fixed)."""
+    def _film_candidates(self, h, V, ok, cos_d, fixed):
+        """The thin-film lobes' candidate films (:func:`film_candidates`) from the rows' unit half
+        vectors ``h``: a list of dicts ``{parameter name: (B,)}``, or ``[{}]`` without a thin-film
+        lobe (or with its film fixed)."""
         films = [j for j, lb in enumerate(self.lobes) if lb.fresnel == "thin_film"]
         if not films or V.shape[-1] != 3:
             return [{}]
-        h = WO + WI
-        th_h = np.degrees(np.arccos(np.clip(h[..., 2] / np.maximum(np.linalg.norm(h, axis=-1), 1e-12), -1, 1)))
+        th_h = np.degrees(np.arccos(np.clip(h[..., 2], -1, 1)))
         out = []
         for c in film_candidates(th_h, cos_d, V, ok, n=FILM_CANDIDATES):
             level = {}
@@ -597,12 +598,12 @@ class LobeSpec:
         elif lb.fresnel == "thin_film":
             B = cos_d.shape[0]
 
-            def per_table(kind, default):
-                v = level[names[kind]] if names[kind] in level else fixed.get(names[kind], default)
-                return np.broadcast_to(np.asarray(v, float), (B,))[:, None]
+            def per_table(kind):
+                v = level[names[kind]] if names[kind] in level else fixed.get(names[kind], FILM_GENERIC[kind])
+                return jnp.asarray(np.broadcast_to(np.asarray(v, float), (B,))[:, None])
 
-            F = np.asarray(_film_rgb(jnp.asarray(cos_d), jnp.asarray(per_table("thickness", 300.0)),
-                                     jnp.asarray(per_table("film_eta", 1.8)), jnp.asarray(per_table("eta", 1.5))), float)
+            F = np.asarray(_film_rgb(jnp.asarray(cos_d), per_table("thickness"), per_table("film_eta"),
+                                     per_table("eta")), float)
         else:
             F = np.ones(cos_d.shape + (1,))
         return np.broadcast_to(F, cos_d.shape + (C,))
@@ -627,7 +628,7 @@ class LobeSpec:
                 out["ks"][j] = a
             elif lb.fresnel == "thin_film":
                 # the film of the candidate; its level is the weight's (the film is not scaled)
-                for kind, default in (("thickness", 300.0), ("film_eta", 1.8), ("eta", 1.5)):
+                for kind, default in FILM_GENERIC.items():
                     v = level.get(names[kind], fixed.get(names[kind], default))
                     out[kind][j] = np.broadcast_to(np.asarray(v, float).reshape((-1, 1)), (B, C))
                 out["ks"][j] = a if scale is None else np.clip(a / np.maximum(scale, 1e-12), 0.0, 1.0)

@@ -32,13 +32,15 @@ from __future__ import annotations
 import functools
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from ..fresnel import fresnel_thin_film
 
-__all__ = ["film_candidates", "highlight_hues", "THICKNESSES", "FILM_ETAS", "BASE_ETAS", "BANDS", "NEAR_DEGREES", "NEAR_ROWS"]
+__all__ = ["film_candidates", "FILM_GENERIC", "THICKNESSES", "FILM_ETAS", "BASE_ETAS", "BANDS", "NEAR_DEGREES", "NEAR_ROWS"]
 
+#: The generic film (a thin-film lobe's generic start, and the start where a table shows no
+#: highlight to read): thickness (nm), film index, index under the film.
+FILM_GENERIC = {"thickness": 300.0, "film_eta": 1.8, "eta": 1.5}
 #: The candidate film thicknesses (nm).
 THICKNESSES = np.arange(20.0, 1001.0, 10.0)
 #: The candidate film indices.
@@ -123,52 +125,10 @@ def film_candidates(th_h, cos_d, V, ok, n=3):
             used += 1
         if not used:  # no highlight to read: the generic film
             for i in range(n):
-                out[i]["thickness"][b], out[i]["film_eta"][b], out[i]["eta"][b] = 300.0, 1.8, 1.5
+                for k in keys:
+                    out[i][k][b] = FILM_GENERIC[k]
             continue
         for i, k in enumerate(np.argsort(err)[:n]):
             out[i]["thickness"][b], out[i]["film_eta"][b], out[i]["eta"][b] = d_all[k], n_all[k], nb_all[k]
     return out
 
-
-def highlight_hues(table, model=None):
-    """The hue (degrees, HSV) of the highlight per band of difference angle (:data:`BANDS`): the
-    mean RGB of the rows within :data:`NEAR_DEGREES` of the mirror direction, from the table's
-    values or, given ``model``, from the model's on the same rows. How a thin film shows in data:
-    its hue turns from band to band; a fit that carries the film turns with it.
-
-    Parameters
-    ----------
-    table : matfit.Table
-        An RGB table.
-    model : matfit.models.AbstractBSDF, optional
-        A model evaluated on the table's rows instead of the values.
-
-    Returns
-    -------
-    numpy.ndarray (4,)
-        Hue per band (NaN where a band has no rows or no colour).
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit import Table
-    >>> from matfit.fitting import highlight_hues
-    >>> wo = np.array([[0.0, 0.1, 0.99]]); wo /= np.linalg.norm(wo)
-    >>> highlight_hues(Table(wo=wo, wi=wo * [1, -1, 1], values=[[1.0, 0.5, 0.0]])).round(1).tolist()  # orange
-    [30.0, nan, nan, nan]
-    """
-    import colorsys
-
-    wo, wi = np.asarray(table.wo, float), np.asarray(table.wi, float)
-    v = np.asarray(table.values, float) if model is None else np.asarray(model.eval(jnp.asarray(wo), jnp.asarray(wi)))
-    h = wo + wi
-    h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-12)
-    th = np.degrees(np.arccos(np.clip(h[:, 2], -1, 1)))
-    td = np.degrees(np.arccos(np.clip(np.sum(wo * h, -1), -1, 1)))
-    out = np.full(len(BANDS), np.nan)
-    for i, (lo, hi) in enumerate(BANDS):
-        m = (th < NEAR_DEGREES) & (td >= lo) & (td < hi) & np.all(np.isfinite(v), axis=-1)
-        mean = v[m].mean(0) if m.any() else np.zeros(3)
-        if mean.max() > 0 and mean.max() > mean.min():
-            out[i] = colorsys.rgb_to_hsv(*(np.clip(mean, 0, None) / mean.max()))[0] * 360
-    return out

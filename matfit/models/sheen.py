@@ -198,7 +198,8 @@ class Sheen(AbstractBSDF):
         ok, mu_o, mu_i = pairs.valid, pairs.cos_o, pairs.cos_i
         # the pairs' cosines are mapped to the normal where a pair is invalid: finite everywhere
         lobe = _lobe(jnp.where(ok, pairs.h.z, 0.0), mu_o, mu_i, self.alpha, jnp)
-        f = self.color * lobe[..., None] + self._scale(mu_o, mu_i)[..., None] * self.base.eval(wo, wi)
+        # the base reads the pairs derived here (its own kernels, or its eval on rebuilt arrays)
+        f = self.color * lobe[..., None] + self._scale(mu_o, mu_i)[..., None] * self.base.eval_pairs(pairs)
         return jnp.where(ok[..., None], f, 0)
 
     def _p_sheen(self, wo):
