@@ -140,6 +140,28 @@ def stratified_pairs(n=1000, seed=0, distribution="uniform", reflection=True, tr
                 reflection=reflection, transmission=transmission)
 
 
+def mirror_biased_pairs(n=24, seed=0, near=1 / 3, spread=0.05):
+    """``n`` random pairs (cosines of both directions uniform in (0.05, 1), azimuths uniform) of
+    which the first ``int(near * n)`` have ``wi`` within a few degrees of ``wo``'s mirror direction
+    (``spread``: the standard deviation of the perturbation of the mirror vector, ~3 degrees): a
+    gonioreflectometer or a capture that looks at the highlight. ``seed`` may be a
+    ``numpy.random.Generator``, which is drawn from (and advanced)."""
+    rng = np.random.default_rng(seed)
+
+    def dirs(m):
+        u = rng.random((m, 2))
+        ct = np.sqrt(u[:, 0]) * 0.95 + 0.05
+        st, ph = np.sqrt(1 - ct**2), 2 * np.pi * u[:, 1]
+        return np.stack([st * np.cos(ph), st * np.sin(ph), ct], -1)
+
+    wo, wi = dirs(n), dirs(n)
+    m = int(near * n)
+    wi[:m] = np.array([-1, -1, 1]) * wo[:m] + rng.normal(0, spread, (m, 3))
+    wi[:m, 2] = np.abs(wi[:m, 2]) + 0.02
+    wi[:m] /= np.linalg.norm(wi[:m], axis=1, keepdims=True)
+    return _out(wo, wi, kind="mirror_biased", n=int(n), near=float(near), spread=float(spread))
+
+
 #: The default sparse pattern (theta_i, phi_i, theta_o, phi_o) in degrees: a few views as a
 #: hand-held or multi-flash capture would give (near-normal, specular, back-scatter, off-plane).
 DEFAULT_SPARSE_VIEWS = (

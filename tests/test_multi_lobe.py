@@ -637,3 +637,21 @@ def test_gltf_and_materialx_write_a_fitted_multilobe(target):
 def test_bad_parameters_raise(make, match):
     with pytest.raises(ParameterError, match=match):
         make()
+
+
+@pytest.mark.parametrize("family, params, expect", [
+    ("lobes3", {"ks_1": 0.3, "ks_2": [0.0, 0.0, 0.0], "ks_3": 0.2, "ratio_2": 3.0, "ratio_3": 2.0}, "lobes2"),
+    ("lobes3", {"ks_1": 0.3, "ks_2": 0.1, "ks_3": 0.2, "ratio_2": 1.0002, "ratio_3": 1.0}, "lobes1"),
+    ("lobes3", {"ks_1": 0.3, "ks_2": 0.1, "ks_3": 0.2, "ratio_2": 1.5, "ratio_3": 2.0}, None),
+    ("lobes2", {"ks_1": [0.3, 0.0, 0.0], "ks_2": 0.1, "ratio_2": 2.0}, None),  # one channel's zero is a colour
+    ("lobes1", {"ks_1": 0.0}, None),  # no smaller lobes family: its diffuse base stays
+    ("metal2", {"mix_2": 0.0, "ratio_2": 2.0}, "conductor"),
+    ("metal2", {"mix_2": 0.4, "ratio_2": 1.0}, "conductor"),
+    ("metal2", {"mix_2": 0.4, "ratio_2": 2.0}, None),
+    ("plastic", {"albedo": 0.0, "alpha": 0.1, "eta": 1.5}, None),
+])
+def test_reduced_family(family, params, expect):
+    from matfit.fitting import reduced_family
+
+    red = reduced_family(family, params)
+    assert (red and red[0]) == expect if expect else red is None

@@ -1,18 +1,20 @@
 """Fitting model families to measurement tables: parameters, losses, solvers, uncertainty."""
 
-from .fit import (METHODS, BatchFit, FitError, FitResult, fit_arrays, fit_batch, guesses_from_arrays, initial_guess,
-                  initial_guesses)
+from .fit import (METHODS, NOISE_FLOOR, REFIT_MIN_BATCH, REFIT_SIGMAS, REFIT_STARTS, SUSPECT_FACTOR, BatchFit, FitError, FitResult,
+                  fit_arrays, fit_batch, guesses_from_arrays, initial_guess, initial_guesses, refit_line)
 from .losses import LOSSES, residuals
 from .methods import DEFAULT_METHOD, Method, get_method
-from .params import FAMILIES, Family, Lobe, Param, Parametrization, TruthMap, compose_family, family_describing, get_family
+from .params import (FAMILIES, REDUCE_TOL, Family, Lobe, Param, Parametrization, TruthMap, compose_family, family_describing,
+                     get_family, reduced_family)
 from ._compose import METAL_ETA_RANGE, METAL_K_RANGE
 
 __all__ = [
     "FAMILIES", "Family", "Param", "Parametrization", "TruthMap", "family_describing", "get_family", "Lobe",
-    "compose_family", "METAL_ETA_RANGE", "METAL_K_RANGE",
+    "compose_family", "METAL_ETA_RANGE", "METAL_K_RANGE", "reduced_family", "REDUCE_TOL",
     "LOSSES", "residuals", "DEFAULT_METHOD", "Method", "get_method",
     "METHODS", "FitError", "FitResult", "fit", "fit_batch", "initial_guess", "initial_guesses",
-    "BatchFit", "fit_arrays", "guesses_from_arrays",
+    "BatchFit", "fit_arrays", "guesses_from_arrays", "NOISE_FLOOR", "REFIT_MIN_BATCH", "REFIT_SIGMAS", "REFIT_STARTS", "SUSPECT_FACTOR",
+    "refit_line",
 ]
 from .mcmc import NOISE_MODES, LogProb, PosteriorResult, SamplingError, make_log_prob, sample_posterior
 

@@ -481,6 +481,8 @@ def choose_family(table, reference="auto", candidates=None, loss=None, log=None,
         except FitError as e:
             return dict(row, error=str(e))
         d = appearance_difference(r.model, refs)
+        if r.reduces_to is not None:  # a lobe unused: the fit is the smaller family, and counts so
+            row = dict(row, p=Parametrization(r.reduces_to, C).size, reduces_to=r.reduces_to)
         return dict(row, score=_score(d), objective=float(r.objective), result=r, diff=d,
                     appearance={k: {m: float(v) for m, v in x.means.items()} for k, x in d.lights.items()})
 

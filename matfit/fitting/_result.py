@@ -78,6 +78,9 @@ class FitResult:
         How the family was chosen, when none was named (:func:`~matfit.fitting.choose_family`).
     appearance : matfit.appearance.AppearanceDiff or None
         The fit's image differences from the measurement, when it was judged by them.
+    reduces_to : str or None
+        The smaller family this fit is, where a term ended unused (a lobe of zero weight:
+        :func:`~matfit.fitting.reduced_family`); model choice counts its parameters.
 
     Examples
     --------
@@ -113,6 +116,7 @@ class FitResult:
     info: list = field(default_factory=list)
     choice: object = field(repr=False, default=None)
     appearance: object = field(repr=False, default=None)
+    reduces_to: str = None
 
     @property
     def ok(self) -> bool:
@@ -166,6 +170,13 @@ class BatchFit:
         Whether each table's solve met its tolerances.
     n_residuals : numpy.ndarray (B,)
         Residuals with a nonzero weight.
+    suspect : numpy.ndarray (B,) of bool
+        Tables whose end stays above ``SUSPECT_FACTOR`` times the noise level after the refit:
+        a false minimum or a model that does not describe them (all False without a level).
+    noise_level : float
+        The residual variance the ends are compared with (1 with known sigma; NaN: none).
+    refitted : int
+        Tables solved again from more starts.
 
     Examples
     --------
@@ -184,3 +195,6 @@ class BatchFit:
     steps: np.ndarray
     converged: np.ndarray
     n_residuals: np.ndarray
+    suspect: np.ndarray = None
+    noise_level: float = float("nan")
+    refitted: int = 0

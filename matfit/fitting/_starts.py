@@ -274,7 +274,7 @@ def candidates(par, base, n_extra, seed, extra=None):
     """``SCREEN_PER_START * n_extra + 1`` candidate starts per table, (B, K + 1, p): half of the
     first K the data-driven start plus N(0, 1) steps in the unconstrained space, half spread over
     the whole parameter box (bounded parameters uniform in (2 %, 98 %) of their range, others
-    N(0, 1) in z); the last one is ``extra`` (B, 1, p), another data-driven start in the
+    N(0, 1) in z); the last ones are ``extra`` (B, k, p), other data-driven starts in the
     unconstrained space (:func:`fit_starts`' extracted widths), or ``base`` again where there is
     none (:func:`screened_starts` then never picks it). The slot is always there, so that the
     screening's compiled shape does not depend on whether a table gives the extra start."""
@@ -285,7 +285,7 @@ def candidates(par, base, n_extra, seed, extra=None):
     bounded = np.isfinite(par.lower_upper()[1])
     spread = np.where(bounded, np.log(u) - np.log1p(-u), rng.normal(0, 1.0, u.shape))
     base = np.asarray(base)
-    slot = base[:, None, :] if extra is None else np.asarray(extra, base.dtype).reshape(base.shape[0], 1, -1)
+    slot = base[:, None, :] if extra is None else np.asarray(extra, base.dtype).reshape(base.shape[0], -1, base.shape[1])
     return np.concatenate([base[:, None, :] + local.astype(base.dtype)[None],
                            np.broadcast_to(spread.astype(base.dtype), (base.shape[0],) + spread.shape), slot], axis=1)
 
@@ -403,7 +403,7 @@ def fit_starts(table, par, n, seed, objective, arrays, init=None):
 
 def screened_starts(objective, par, base, n, seed, arrays, batched=False, extra=None):
     """Starts per table, (B, n, p): the data-driven start ``base`` (B, p) first, then the ``n - 1``
-    candidates of :func:`candidates` (``extra`` (B, 1, p) one more of them, where given) with the
+    candidates of :func:`candidates` (``extra`` (B, k, p) more of them, where given) with the
     lowest objective on the table (one vectorized evaluation of the fit's own objective; multi-start without the cost of
     ``n`` full solves from blind perturbations, which for layered and metal families mostly end at
     a bound)."""

@@ -37,10 +37,47 @@ from .diagnostics import diagnose
 from .lm import column_groups
 from .losses import check_loss, prepare_targets
 from .methods import DEFAULT_METHOD, METHODS, get_method
-from .params import Parametrization, check_solver_options
+from .params import Parametrization, check_solver_options, reduced_family
 
 __all__ = ["fit", "fit_batch", "fit_arrays", "FitResult", "FitError", "BatchFit", "initial_guess", "initial_guesses",
-           "guesses_from_arrays", "fit_starts", "memory_estimate", "SCREEN_PER_START"]
+           "guesses_from_arrays", "fit_starts", "memory_estimate", "SCREEN_PER_START", "REFIT_SIGMAS", "refit_line", "SUSPECT_FACTOR",
+           "REFIT_STARTS", "REFIT_MIN_BATCH", "NOISE_FLOOR"]
+
+
+#: A batch's tables whose residual variance ``q`` ends more than this many of its standard
+#: deviations above the batch's noise level (``q / level > 1 + REFIT_SIGMAS sqrt(2 / dof)``, the
+#: spread of a chi^2 per degree of freedom) are solved again from more starts (:func:`fit_arrays`).
+REFIT_SIGMAS = 4.0
+#: Tables still above this multiple of the noise level after the refit are ``suspect``.
+SUSPECT_FACTOR = 10.0
+#: Starts of a refit: the data-driven one and the best screened candidates.
+REFIT_STARTS = 8
+#: Fewest tables from which the batch's median residual variance is taken as the noise level.
+REFIT_MIN_BATCH = 16
+#: The lowest noise level, as a relative residual RMS: below it ends are rounding error.
+NOISE_FLOOR = 1e-5
+
+
+def refit_line(dof):
+    """The residual variance, in units of the noise level, above which a table is refitted.
+
+    Parameters
+    ----------
+    dof : array_like
+        Degrees of freedom (residuals less free parameters).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``1 + REFIT_SIGMAS * sqrt(2 / dof)``.
+
+    Examples
+    --------
+    >>> from matfit.fitting import refit_line
+    >>> [round(float(x), 2) for x in refit_line([8, 72])]
+    [3.0, 1.67]
+    """
+    return 1 + REFIT_SIGMAS * np.sqrt(2 / np.maximum(np.asarray(dof, float), 1))
 
 
 def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust_scale=1.0, fixed=None, tied=(),
@@ -69,7 +106,10 @@ def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust
     starts : int
         Number of starts: the data-driven guess plus the ``starts - 1`` best of the screened
         candidates (random draws around the guess and the guess with the widths of the
-        table's extracted microfacet distribution; see :func:`fit_starts`).
+        table's extracted microfacet distribution; see :func:`fit_starts`). With the table's own
+        sigma (``l2``, no robust loss) an end whose reduced chi-square lies above
+        :func:`refit_line` is solved again from ``max(REFIT_STARTS, 2 * starts)`` other starts and
+        the lower end kept (``info`` says so): the end is judged against the noise.
     init : dict, optional
         Starting values replacing the data-driven guess.
 
@@ -122,6 +162,24 @@ def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust
     # the best start's residuals and J^T J come with the solution (Gauss-Newton covariance below)
     z, obj, steps, ok, best, r_best, A, sub = run_full(z0s, rows)
     obj = np.asarray(obj)
+    known = table.sigma is not None and loss == "l2" and robust is None
+    chi2 = 2 * float(np.nanmin(obj)) / max(n_res - par.size, 1)
+    info = []
+    if known and sub is None and not chi2 <= float(refit_line(n_res - par.size)):
+        # with the table's own sigma the end is judged against the noise: far above it, a false
+        # minimum is likely, and more starts (other seeds) are solved; the lower end is kept
+        # (tables small enough to be solved whole from every start: a large one's starts end on
+        # its subset)
+        n2 = max(REFIT_STARTS, 2 * starts)
+        again = run_full(fit_starts(table, par, n2, seed + 1, objective, rows if screen is None else screen, init), rows)
+        obj2 = np.asarray(again[1])
+        kept = bool(np.nanmin(obj2) < np.nanmin(obj))
+        if kept:
+            z, obj, steps, ok, best, r_best, A, sub = again
+            obj = obj2
+        info.append(f"the first end's reduced chi-square {chi2:.4g} was above {float(refit_line(n_res - par.size)):.4g} "
+                    f"(the noise's line for the table's sigma): refitted from {n2} more starts, "
+                    + ("a lower end found" if kept else "no lower end found"))
     good = np.isfinite(obj) & np.all(np.isfinite(np.asarray(z)), axis=1)
     if not good.any():
         raise FitError("fit: every start ended with non-finite parameters or objective")
@@ -136,13 +194,12 @@ def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust
     At = np.asarray(A, float) * np.outer(inv_d, inv_d)  # J^T J in the natural parameters
     rss = float(2 * obj[best])
     dof = n_res - par.size
-    s2 = 1.0 if (table.sigma is not None and loss == "l2" and robust is None) else rss / max(dof, 1)
+    s2 = 1.0 if known else rss / max(dof, 1)
     cov = s2 * np.linalg.pinv(At)
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
     values = np.asarray(post["values"])
     lower, upper = par.lower_upper()
     data_scale = float(_weighted_rms(arrays[2], arrays[3]))
-    info = []
     if METHODS[method].residuals == "channels" and device_count() == 1 and not supports_soa(post["model"]):
         info.append(f"{method}: the {model!r} family's model has no channel-split kernel; solved on (N, C) residuals")
     start_kw = dict(start_values=np.asarray(post["starts"]), start_objectives=obj)
@@ -155,13 +212,16 @@ def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust
     notes, unident = diagnose(
         labels=par.labels, values=values, stderr=se, lower=lower, upper=upper, gram=At, residuals=r_best,
         converged=bool(np.asarray(ok)[best]), steps=int(np.asarray(steps)[best]), max_steps=int(max_steps),
-        known_sigma=table.sigma is not None and loss == "l2" and robust is None, dof=n_res - par.size,
+        known_sigma=known, dof=n_res - par.size,
         data_scale=data_scale, best=best, scale=_value_scale(arrays, loss, robust),
         physical=par.physical_bounds(), **start_kw)
     se = np.where(np.isin(par.labels, unident), np.inf, se)
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(se, se)
     theta = post["theta"]
+    reduced = reduced_family(par.family.name, theta)
+    if reduced is not None:
+        info.append(f"this family reduces to a smaller one: {par.family.name} -> {reduced[0]} ({reduced[1]})")
     return FitResult(
         family=model, method=method, loss=loss,
         params={k: np.asarray(v) for k, v in theta.items()},
@@ -169,6 +229,7 @@ def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust
         objective=float(obj[best]), rss=rss, n_residuals=n_res, dof=dof, steps=int(np.asarray(steps)[best]),
         converged=bool(np.asarray(ok)[best]), wall_time=time.perf_counter() - t0, start_objectives=obj,
         model=post["model"], z=np.asarray(zb), warnings=notes, info=info,
+        reduces_to=None if reduced is None else reduced[0],
     )
 
 
@@ -285,12 +346,20 @@ def _batch_programs(run_full, par, shared):
 
 def fit_arrays(wo, wi, values, weight=None, *, model="plastic", method=DEFAULT_METHOD, loss="l2", fixed=None,
                tied=(), starts=1, max_steps=128, rtol=1e-8, atol=1e-10, dtype=None, valid=None, known_sigma=False,
-               uncertainty=True, where="fit_arrays") -> BatchFit:
-    """Fit one family to a stack of B small tables given as arrays, in one vectorized call.
+               uncertainty=True, refit=True, init=None, noise_level=None, where="fit_arrays") -> BatchFit:
+    r"""Fit one family to a stack of B small tables given as arrays, in one vectorized call.
 
     The core of :func:`fit_batch` and :func:`matfit.maps.fit_map`: every table gets its own
     data-driven start (:func:`guesses_from_arrays`; ``starts - 1`` screened candidates more) and
     its own solve, all in one compiled program; new values of the same shapes reuse it.
+
+    False minima: each table's end is compared with the noise level, :math:`q = 2 F / (n - p)`
+    (the residual variance; ``chi^2 / dof`` with ``known_sigma``) against the level
+    :math:`\hat q` (1 with ``known_sigma``, else the batch's median of ``q``: tables of one
+    capture share their noise; with fewer than :data:`REFIT_MIN_BATCH` tables and no known
+    sigma there is no level). Tables above :func:`refit_line` times the level are solved
+    again from :data:`REFIT_STARTS` screened starts (and ``init``) and keep the better end;
+    those still above :data:`SUSPECT_FACTOR` times it are ``suspect`` in the result.
 
     Parameters
     ----------
@@ -309,6 +378,14 @@ def fit_arrays(wo, wi, values, weight=None, *, model="plastic", method=DEFAULT_M
         the residual variance.
     uncertainty : bool
         Compute standard errors (the Gauss-Newton ``J^T J`` the solver returns with its solution).
+    refit : bool, default True
+        Solve tables that end far above the noise level again from more starts (above).
+    init : array_like, (B, k, p), optional
+        More candidate starts per table, natural values in the order of the labels (e.g. a
+        map's neighbouring solutions; NaN: none), screened with the random candidates (of the
+        first solve when ``starts > 1``, and of a refit).
+    noise_level : float, optional
+        The level to compare the ends with (default: from the batch, above).
 
     Returns
     -------
@@ -349,31 +426,78 @@ def fit_arrays(wo, wi, values, weight=None, *, model="plastic", method=DEFAULT_M
     WI = np.broadcast_to(wi, (B, N, 3)) if wi.ndim == 2 else wi
     guess = guesses_from_arrays(WO, WI, values, ok_rows, par, one=B == 1)
     to_z, run, post = _batch_programs(run_full, par, shared)
-    if shared:
-        dirs = (jnp.asarray(wo, dt), jnp.asarray(wi, dt))
-    else:
-        dirs = (jnp.asarray(WO, dt), jnp.asarray(WI, dt))
+    dirs = (jnp.asarray(wo, dt), jnp.asarray(wi, dt)) if shared else (jnp.asarray(WO, dt), jnp.asarray(WI, dt))
     arrays = dirs + (jnp.asarray(values, dt), jnp.asarray(w, dt))
     base = np.asarray(to_z({k: jnp.asarray(v, float) for k, v in guess.items()})).astype(np.dtype(dt))
-    if starts > 1:
-        full = (jnp.asarray(WO, dt), jnp.asarray(WI, dt)) + arrays[2:]
-        z0 = screened_starts(objective, par, base, starts, 0, full, batched=True)
-    else:
-        z0 = jnp.asarray(base[:, None, :])
-    z, obj, steps, ok, best, r, A, _ = run(z0, arrays)
-    best = np.asarray(best)
-    zb = jnp.take_along_axis(z, jnp.asarray(best)[:, None, None], axis=1)[:, 0]
-    vals, dtheta = (np.asarray(a) for a in post(zb))
-    pick = lambda a: np.take_along_axis(np.asarray(a), best[:, None], axis=1)[:, 0]  # noqa: E731
-    objective_b = pick(obj)
     n_res = np.count_nonzero(w, axis=(1, 2))
+    dof = np.maximum(n_res - par.size, 1)
+    full = lambda sel: (jnp.asarray(WO[sel], dt), jnp.asarray(WI[sel], dt)) + tuple(a[sel] for a in arrays[2:])  # noqa: E731
+    init_z = None if init is None else _init_z(par, to_z, init, base)
+    z0 = screened_starts(objective, par, base, starts, 0, full(slice(None)), batched=True, extra=init_z) \
+        if starts > 1 else jnp.asarray(base[:, None, :])
+    zb, objective_b, steps_b, ok_b, A = _solve_stack(run, z0, arrays)
+    q = 2 * objective_b.astype(float) / dof
+    if noise_level is not None:
+        level = float(noise_level)
+    elif known_sigma:
+        level = 1.0
+    elif B >= REFIT_MIN_BATCH and np.isfinite(q).any():
+        # floored at a residual RMS of NOISE_FLOOR of the values (residual space: 1 for the
+        # relative loss): noise-free tables end at rounding error and are not refitted for it
+        scale = 1.0 if loss == "relative" else float(np.median(np.sum(w * values**2, axis=(1, 2)) / np.maximum(n_res, 1)))
+        level = max(float(np.median(q[np.isfinite(q)])), NOISE_FLOOR**2 * scale)
+    else:
+        level = np.nan
+    redo = np.flatnonzero(~(q <= refit_line(dof) * level)) if refit and np.isfinite(level) else np.array([], int)
+    if redo.size:
+        # padded to a power of two: refits of nearby counts share one compiled program
+        sel = np.concatenate([redo, np.repeat(redo[-1:], (1 << int(redo.size - 1).bit_length()) - redo.size)])
+        extra = None if init_z is None else init_z[sel]
+        z1 = screened_starts(objective, par, base[sel], REFIT_STARTS, 1, full(sel), batched=True, extra=extra)
+        sub = (dirs if shared else tuple(d[sel] for d in dirs)) + tuple(a[sel] for a in arrays[2:])
+        zr, obj_r, steps_r, ok_r, A_r = _solve_stack(run, z1, sub)
+        n = redo.size
+        better = np.flatnonzero(obj_r[:n] < objective_b[redo])
+        t = redo[better]
+        zb, A = np.array(zb), np.array(A)
+        zb[t], objective_b[t], steps_b[t], ok_b[t], A[t] = (zr[better], obj_r[better], steps_r[better] + steps_b[t],
+                                                            ok_r[better], A_r[better])
+        q = 2 * objective_b.astype(float) / dof
+    suspect = q > SUSPECT_FACTOR * level if np.isfinite(level) else np.zeros(B, bool)
+    vals, dtheta = (np.asarray(a) for a in post(jnp.asarray(zb)))
     se = np.full(vals.shape, np.nan)
     if uncertainty:
         inv_d = 1 / np.where(dtheta != 0, dtheta, np.inf)
         At = np.asarray(A, float) * inv_d[:, :, None] * inv_d[:, None, :]
-        dof = np.maximum(n_res - par.size, 1)
         s2 = np.ones(B) if known_sigma else 2 * objective_b.astype(float) / dof
         cov = s2[:, None, None] * np.linalg.pinv(At, hermitian=True)
         se = np.sqrt(np.clip(np.diagonal(cov, axis1=1, axis2=2), 0, None))
-    return BatchFit(labels=par.labels, values=vals, stderr=se, objective=objective_b, steps=pick(steps),
-                    converged=pick(ok).astype(bool), n_residuals=n_res)
+    return BatchFit(labels=par.labels, values=vals, stderr=se, objective=objective_b, steps=steps_b,
+                    converged=ok_b.astype(bool), n_residuals=n_res, suspect=suspect, noise_level=level,
+                    refitted=int(redo.size))
+
+
+def _solve_stack(run, z0, arrays):
+    """Solve every table from its starts ``z0`` (B, n, p); each table's best end as numpy arrays
+    ``(z (B, p), objective, steps, converged, J^T J)``."""
+    z, obj, steps, ok, best, _, A, _ = run(z0, arrays)
+    best = np.asarray(best)
+    pick = lambda a: np.take_along_axis(np.asarray(a), best.reshape((-1,) + (1,) * (np.ndim(a) - 1)), axis=1)[:, 0]  # noqa: E731
+    return pick(z), pick(obj), pick(steps), pick(ok), np.asarray(A)
+
+
+def _init_z(par, to_z, init, base):
+    """Natural starting values (B, k, p) to the unconstrained space, kept inside their ranges; a
+    start with a NaN (no neighbour) is the table's data-driven one, ``base`` (B, p)."""
+    v = np.asarray(init, float)
+    if v.ndim != 3 or v.shape[0] != base.shape[0] or v.shape[2] != par.size:
+        raise ParameterError(f"fit_arrays: init must be (B, k, p) = ({base.shape[0]}, k, {par.size}) natural values, "
+                             f"found shape {v.shape}")
+    lo, hi = par.lower_upper()
+    span = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
+    missing = ~np.isfinite(v).all(axis=2)
+    v = np.clip(np.where(missing[..., None], (lo + hi) / 2 if np.isfinite(span).all() else 0.0, v),
+                lo + 1e-3 * span, hi - 1e-3 * span)
+    B, k, p = v.shape
+    z = np.asarray(to_z(par.split(jnp.asarray(v.reshape(B * k, p), float)))).reshape(B, k, p)
+    return np.where(missing[..., None], base[:, None, :], z).astype(base.dtype)

@@ -23,7 +23,7 @@ from ._conductor_guess import refine_conductor
 from ..models import CoatedConductor, DiffuseSpecular, Lambert, Plastic, RoughConductor, RoughDielectric, Sheen
 
 __all__ = ["Param", "TruthMap", "Family", "FAMILIES", "family_describing", "get_family", "check_solver_options", "Parametrization",
-           "Lobe", "compose_family"]
+           "Lobe", "compose_family", "reduced_family", "REDUCE_TOL"]
 
 
 @dataclass(frozen=True)
@@ -543,6 +543,68 @@ def get_family(name) -> Family:
     if name not in FAMILIES:
         raise ParameterError(f"model must be one of {sorted(FAMILIES)}, got {name!r}")
     return FAMILIES[name]
+
+
+#: A lobe's weight (every channel) at or below this is no lobe; a width ratio within it of 1 is
+#: the previous lobe again (see :func:`reduced_family`).
+REDUCE_TOL = 1e-3
+
+
+def reduced_family(family, params, tol=REDUCE_TOL):
+    """The smaller family a fit of ``family`` reduces to, where its extra terms ended unused.
+
+    A lobe of ``lobesN`` whose weight ``ks_j`` is at most ``tol`` on every channel is absent, and
+    a lobe whose width ratio ``ratio_j`` is within ``tol`` of 1 is the previous lobe again (the
+    two share the Fresnel ``f0``: their weights add); ``metal2`` with its mixture weight at 0 or 1
+    or its ratio at 1 is one ``conductor``. Model choice counts such a fit's parameters as the
+    smaller family's.
+
+    Parameters
+    ----------
+    family : str
+        The fitted family.
+    params : mapping
+        Its parameter values (name -> scalar or per channel), as :attr:`FitResult.params`.
+    tol : float
+        The weight (and ratio) tolerance.
+
+    Returns
+    -------
+    (str, str) or None
+        The smaller family and why, or None when every term is used.
+
+    Examples
+    --------
+    >>> from matfit.fitting import reduced_family
+    >>> p = {"albedo": 0.5, "alpha_1": 0.1, "ks_1": 0.4, "f0": 0.04, "ratio_2": 3.0, "ks_2": [0.0, 0.0, 2e-4]}
+    >>> reduced_family("lobes2", p)
+    ('lobes1', 'ks_2 = 0 on every channel: lobe 2 is unused')
+    >>> reduced_family("lobes2", dict(p, ks_2=0.2)) is None
+    True
+    """
+    v = {k: np.asarray(x, float) for k, x in params.items()}
+    why = []
+    if family.startswith("lobes") and family[5:].isdigit():
+        n = int(family[5:])
+        if any(f"ks_{j}" not in v or (j > 1 and f"ratio_{j}" not in v) for j in range(1, n + 1)):
+            return None  # a family of that name composed otherwise
+        alive = n
+        for j in range(1, n + 1):
+            if np.all(v[f"ks_{j}"] <= tol):
+                why.append(f"ks_{j} = 0 on every channel: lobe {j} is unused")
+                alive -= 1
+            elif j > 1 and np.all(np.abs(v[f"ratio_{j}"] - 1) <= tol):
+                why.append(f"ratio_{j} = 1: lobe {j} has lobe {j - 1}'s width (their weights add)")
+                alive -= 1
+        if alive < n and alive >= 1:
+            return f"lobes{alive}", "; ".join(why)
+        return None
+    if family == "metal2" and {"mix_2", "ratio_2"} <= set(v):
+        if np.all(v["mix_2"] <= tol) or np.all(v["mix_2"] >= 1 - tol):
+            return "conductor", "mix_2 at 0 or 1: one lobe is unused"
+        if np.all(np.abs(v["ratio_2"] - 1) <= tol):
+            return "conductor", "ratio_2 = 1: the two lobes have one width"
+    return None
 
 
 def _count(owner, name, v, lo):

@@ -21,6 +21,17 @@ outweigh the diffuse measurements by orders of magnitude), with the noise scale 
 each texel's residuals; with ``sigma`` given (absolute, broadcast to ``values``) the weights are
 ``1 / sigma**2`` and the standard errors use it as known.
 
+False minima (``refit=True``, the default): a texel's end is compared with the map's noise
+level, the median over its texels of the residual variance :math:`q = 2F / (n - p)` (1 with
+``sigma`` given; floored at a relative RMS of ``NOISE_FLOOR``). A texel whose :math:`q` lies
+more than :data:`~matfit.fitting.REFIT_SIGMAS` standard deviations of a :math:`\chi^2` per degree of
+freedom above the level (:func:`~matfit.fitting.refit_line`) is solved again, first within its
+chunk from :data:`~matfit.fitting.REFIT_STARTS` screened starts (:func:`~matfit.fitting.fit_arrays`),
+then from the solutions of its 8 neighbours and of 16 good texels spread over the map (a region of
+false minima borrows from the rest), keeping the lowest end. A texel still above
+:data:`~matfit.fitting.SUSPECT_FACTOR` (10) times the level is ``suspect``: a false minimum or a
+texel the family does not describe; the summary counts them.
+
 Smoothness prior (``smooth > 0``, off by default): each texel's estimate is pulled towards the
 mean of its 4 neighbours, weighted by its own precision: a few Jacobi sweeps of
 :math:`\theta = (\theta_0 / s^2 + \lambda\,\bar\theta_{nb}) / (1 / s^2 + \lambda)` with
@@ -38,7 +49,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ParameterError
-from ..fitting import fit_arrays, get_family
+from ..fitting import NOISE_FLOOR, REFIT_STARTS, SUSPECT_FACTOR, fit_arrays, get_family, refit_line
 from ..fitting.params import Parametrization
 
 #: Texels per chunk by default: large enough that the batched solver's per-call overhead is
@@ -70,6 +81,12 @@ class MapResult:
         (inside ``mask`` with more usable measurements than free parameters).
     steps, n_measurements : numpy.ndarray, (H, W) int
         Solver iterations, and usable measurements, per texel.
+    suspect : numpy.ndarray, (H, W) bool
+        Texels whose residual variance stays above ``SUSPECT_FACTOR`` (10) times the map's noise
+        level after every refit (module doc): a false minimum, or a texel the family does not
+        describe (a scratch, a sensor defect). Their parameters are not to be trusted.
+    refitted : int
+        Texels solved again from more starts.
     wall_time : float
         Seconds of the whole call.
     info : list of str
@@ -97,6 +114,8 @@ class MapResult:
     fitted: np.ndarray
     steps: np.ndarray
     n_measurements: np.ndarray
+    suspect: np.ndarray
+    refitted: int
     wall_time: float
     info: list = field(default_factory=list)
 
@@ -152,7 +171,7 @@ class MapResult:
         >>> from matfit.maps import fit_map
         >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
         >>> lines = fit_map(wo, wi, np.full((1, 2, 3, 3), 0.1), model="lambert").summary().splitlines()
-        >>> lines[0].split(" in ")[0], lines[2].split(",")[0]
+        >>> lines[0].split(" in ")[0], lines[3].split(",")[0]
         ('lambert map 1x2: 2 texels fitted', '  albedo     median 0.3142 0.3142 0.3142')
         """
         n = int(self.fitted.sum())
@@ -160,6 +179,11 @@ class MapResult:
                  f"({self.texels_per_second:.0f} texels/s)",
                  f"  converged {self.converged[self.fitted].mean():.1%}, at a bound {self.at_bound[self.fitted].mean():.1%}, "
                  f"median relative RMSE {np.nanmedian(self.rel_rmse[self.fitted]):.3g}" if n else "  nothing fitted"]
+        if n:
+            ns = int(self.suspect.sum())
+            lines.append(f"  {self.refitted} texels refitted from more starts; " + (
+                f"{ns} ({ns / n:.2%}) still end above 10x the map's noise level: suspect (MapResult.suspect), "
+                "do not trust them" if ns else "none ends above 10x the map's noise level"))
         fmt = lambda a: " ".join(f"{x:.4g}" for x in np.atleast_1d(a))  # noqa: E731
         for k, v in self.params.items():
             sel = v[self.fitted] if n else v.reshape((-1,) + v.shape[2:])
@@ -236,7 +260,7 @@ def _progress_bar(progress, total):
 
 
 def fit_map(wo, wi, values, model="diffuse_specular", mask=None, sigma=None, *, valid=None, fixed=None, tied=(),
-            chunk=DEFAULT_CHUNK, max_steps=64, smooth=0.0, dtype=None, progress=False) -> MapResult:
+            chunk=DEFAULT_CHUNK, max_steps=64, smooth=0.0, dtype=None, progress=False, refit=True) -> MapResult:
     """Fit ``model`` to every texel of a capture.
 
     Parameters
@@ -269,6 +293,9 @@ def fit_map(wo, wi, values, model="diffuse_specular", mask=None, sigma=None, *, 
     dtype : None, "float32" or "float64"
     progress : bool or callable
         A progress bar on stderr, or ``progress(done, total, elapsed_s)`` after every chunk.
+    refit : bool, default True
+        Solve texels that end far above the map's noise level again, from more starts and from
+        their neighbours' solutions (module doc); False: one solve per texel.
 
     Returns
     -------
@@ -321,11 +348,17 @@ def fit_map(wo, wi, values, model="diffuse_specular", mask=None, sigma=None, *, 
     out_rel = np.full(H * W, np.nan, np.float32)
     out_steps = np.zeros(H * W, np.int32)
     out_ok = np.zeros(H * W, bool)
+    out_dof = np.ones(H * W, np.int64)
+    refitted = [0]
     lower, upper = par.lower_upper()
 
     def run_chunk(k):
         idx = todo[k * chunk:(k + 1) * chunk]
-        idx = np.concatenate([idx, np.repeat(idx[-1:], chunk - len(idx))])  # same shape: one program
+        return run_rows(np.concatenate([idx, np.repeat(idx[-1:], chunk - len(idx))]), refit=refit)  # one program
+
+    def run_rows(idx, **kw):
+        """Fit texels ``idx`` (flat indices); ``kw`` goes to fit_arrays (the refit's starts)."""
+        n_rows = len(idx)
         v = read_rows(idx)
         ok = np.ones(v.shape[:2], bool) if flat_valid is None else np.asarray(flat_valid[idx])
         bad = ~np.isfinite(v) & ok[..., None]
@@ -343,19 +376,20 @@ def fit_map(wo, wi, values, model="diffuse_specular", mask=None, sigma=None, *, 
             loss = "l2"
         o, i = wo, wi
         if not shared:
-            o, i = (np.broadcast_to(d, (chunk, N, 3)) if read is None else read(idx)
+            o, i = (np.broadcast_to(d, (n_rows, N, 3)) if read is None else read(idx)
                     for d, read in zip((wo, wi), read_dirs))
             for name, d, read in (("wo", o, read_dirs[0]), ("wi", i, read_dirs[1])):
                 if read is not None:
                     _check_unit(name, d)
         r = fit_arrays(o, i, v, w, model=family, loss=loss, fixed=fixed, tied=tied, max_steps=max_steps,
-                       dtype=dtype, valid=ok, known_sigma=sigma is not None, where="fit_map")
+                       dtype=dtype, valid=ok, known_sigma=sigma is not None, where="fit_map", **kw)
         # relative residuals at the solution, for the diagnostics map
         n_use = np.maximum(np.count_nonzero(w, axis=(1, 2)), 1)
-        rel = np.sqrt(2 * r.objective / n_use) if sigma is None else np.full(chunk, np.nan)
+        rel = np.sqrt(2 * r.objective / n_use) if sigma is None else np.full(n_rows, np.nan)
         return {"values": r.values.astype(np.float32), "stderr": r.stderr.astype(np.float32),
                 "objective": r.objective.astype(np.float32), "rel": rel.astype(np.float32),
-                "steps": r.steps.astype(np.int32), "converged": r.converged}
+                "steps": r.steps.astype(np.int32), "converged": r.converged,
+                "refitted": np.full(n_rows, r.refitted, np.int32), "dof": np.maximum(n_use - p, 1)}
 
     def store(k, res):
         idx = todo[k * chunk:(k + 1) * chunk]
@@ -363,6 +397,7 @@ def fit_map(wo, wi, values, model="diffuse_specular", mask=None, sigma=None, *, 
         out_v[idx], out_se[idx] = res["values"][:n], res["stderr"][:n]
         out_obj[idx], out_rel[idx] = res["objective"][:n], res["rel"][:n]
         out_steps[idx], out_ok[idx] = res["steps"][:n], res["converged"][:n]
+        out_dof[idx], refitted[0] = res["dof"][:n], refitted[0] + int(res["refitted"][0])
 
     bar = _progress_bar(progress, len(todo))
     P, me = _processes()
@@ -384,6 +419,29 @@ def fit_map(wo, wi, values, model="diffuse_specular", mask=None, sigma=None, *, 
 
     fitted = np.zeros(H * W, bool)
     fitted[todo] = True
+    # the map's noise level (its texels share a camera): tables far above it are refitted from
+    # their neighbours' solutions and from solutions spread over the map, then flagged
+    q = 2 * out_obj.astype(float) / out_dof
+    level = 1.0 if sigma is not None else (max(float(np.median(q[fitted])), NOISE_FLOOR**2) if fitted.any() else np.nan)
+    with np.errstate(invalid="ignore"):
+        redo = np.flatnonzero(fitted & ~(q <= refit_line(out_dof) * level))
+    if redo.size and refit:
+        for lo in range(0, redo.size, chunk):
+            part = redo[lo:lo + chunk]
+            sel = np.concatenate([part, np.repeat(part[-1:], (1 << int(part.size - 1).bit_length()) - part.size)])
+            init = _neighbour_starts(out_v, fitted & (q <= refit_line(out_dof) * level), sel, H, W)
+            res = run_rows(sel, starts=REFIT_STARTS, init=init, refit=False, noise_level=level)
+            n = part.size
+            better = np.flatnonzero(res["objective"][:n] < out_obj[part])
+            t = part[better]
+            out_v[t], out_se[t], out_obj[t], out_rel[t] = (res["values"][better], res["stderr"][better],
+                                                           res["objective"][better], res["rel"][better])
+            out_steps[t], out_ok[t] = out_steps[t] + res["steps"][better], res["converged"][better]
+        refitted[0] += redo.size
+        q = 2 * out_obj.astype(float) / out_dof
+    with np.errstate(invalid="ignore"):
+        out_suspect = fitted & ~(q <= SUSPECT_FACTOR * level)
+    refitted = refitted[0]
     span = upper - lower
     near = np.where(np.isfinite(span), 1e-3 * span, 1e-3)
     with np.errstate(invalid="ignore"):
@@ -396,7 +454,26 @@ def fit_map(wo, wi, values, model="diffuse_specular", mask=None, sigma=None, *, 
         family=family, labels=par.labels, params=values_map, stderr=se_map, objective=out_obj.reshape(H, W),
         rel_rmse=out_rel.reshape(H, W), converged=out_ok.reshape(H, W), at_bound=at_bound.reshape(H, W),
         fitted=fitted.reshape(H, W), steps=out_steps.reshape(H, W), n_measurements=n_meas.reshape(H, W).astype(np.int32),
-        wall_time=time.perf_counter() - t0, info=info)
+        suspect=out_suspect.reshape(H, W), refitted=refitted, wall_time=time.perf_counter() - t0, info=info)
+
+
+def _neighbour_starts(out_v, good, idx, H, W, pool=16):
+    """Candidate starts of texels ``idx`` (n, 8 + pool, p): the solutions of their 8 neighbours
+    where those are good (else NaN), and of ``pool`` good texels spread over the map (every
+    k-th in raster order: a region of false minima borrows from the rest of the map)."""
+    r, c = idx // W, idx % W
+    nb = []
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            if dr or dc:
+                rr, cc = r + dr, c + dc
+                inside = (rr >= 0) & (rr < H) & (cc >= 0) & (cc < W)
+                j = np.where(inside, rr, 0) * W + np.where(inside, cc, 0)
+                ok = inside & good[j]
+                nb.append(np.where(ok[:, None], out_v[j], np.nan))
+    g = np.flatnonzero(good)
+    spread = out_v[g[np.linspace(0, g.size - 1, pool).astype(int)]] if g.size else np.full((pool, out_v.shape[1]), np.nan)
+    return np.concatenate([np.stack(nb, axis=1), np.broadcast_to(spread, (len(idx),) + spread.shape)], axis=1)
 
 
 def _row_reader(values, flat_v):
@@ -485,7 +562,8 @@ def _gather(local, n_chunks, P, chunk, p, store):
     per = -(-n_chunks // P)
     blank = {"values": np.zeros((chunk, p), np.float32), "stderr": np.zeros((chunk, p), np.float32),
              "objective": np.zeros(chunk, np.float32), "rel": np.zeros(chunk, np.float32),
-             "steps": np.zeros(chunk, np.int32), "converged": np.zeros(chunk, bool)}
+             "steps": np.zeros(chunk, np.int32), "converged": np.zeros(chunk, bool),
+             "refitted": np.zeros(chunk, np.int32), "dof": np.ones(chunk, np.int64)}
     stacked = {k: np.stack([r[k] for r in local] + [blank[k]] * (per - len(local))) for k in blank}
     gathered = multihost_utils.process_allgather(stacked)  # leaves (P, per, chunk, ...)
     for q in range(P):
