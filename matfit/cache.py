@@ -102,10 +102,12 @@ def enable_compilation_cache(path=None) -> Path | None:
     --------
     >>> import os
     >>> from matfit.cache import enable_compilation_cache
+    >>> saved = os.environ.get("MATFIT_NO_CACHE")
     >>> os.environ["MATFIT_NO_CACHE"] = "1"
     >>> enable_compilation_cache() is None  # turned off: JAX's settings untouched
     True
-    >>> del os.environ["MATFIT_NO_CACHE"]
+    >>> if saved is None: del os.environ["MATFIT_NO_CACHE"]
+    ... else: os.environ["MATFIT_NO_CACHE"] = saved
     """
     import jax
 

@@ -1,5 +1,7 @@
 import os
+import shutil
 import sys
+import tempfile
 import zlib
 from pathlib import Path
 
@@ -75,7 +77,35 @@ def pytest_configure(config):
     # write into the user's cache nor change how the rest of the session compiles
     # (tests/test_cache.py tests the cache in subprocesses of its own)
     os.environ["MATFIT_NO_CACHE"] = "1"
+    # one JAX persistent compilation cache for the session, in a fresh folder shared by the xdist
+    # workers: a program that both workers (or two tests building the same program afresh)
+    # compile is compiled once and loaded after; removed when the session ends
+    folder = os.environ.get("MATFIT_TEST_JAX_CACHE")
+    if folder is None:
+        folder = tempfile.mkdtemp(prefix="matfit-test-jax-")
+        os.environ["MATFIT_TEST_JAX_CACHE"] = folder  # inherited by the workers, started after this
+        config._matfit_cache_owner = folder
+    jax.config.update("jax_compilation_cache_dir", folder)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
     config.addinivalue_line("markers", "check: the quick `make check` tier (see CHECK_TIER in tests/conftest.py)")
+
+
+def pytest_unconfigure(config):
+    folder = getattr(config, "_matfit_cache_owner", None)
+    if folder:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _release_compiled_programs():
+    """Drop JAX's in-memory compiled programs after every test module. Each XLA CPU executable
+    holds memory mappings, and a worker that kept every program of its share of the suite came
+    within a few thousand of the kernel's limit (``vm.max_map_count``, 65,530: 52,490 mappings
+    late in a run); past it XLA's compiler cannot map code and the worker dies of a segfault.
+    A program needed again is loaded from the session's persistent cache (above)."""
+    yield
+    jax.clear_caches()
 
 
 def pytest_collection_modifyitems(config, items):
