@@ -23,7 +23,8 @@ each texel's residuals; with ``sigma`` given (absolute, broadcast to ``values``)
 
 False minima (``refit=True``, the default): a texel's end is compared with the map's noise
 level, the median over its texels of the residual variance :math:`q = 2F / (n - p)` (1 with
-``sigma`` given; floored at a relative RMS of ``NOISE_FLOOR``). A texel whose :math:`q` lies
+``sigma`` given; floored at a relative RMS of ``NOISE_FLOOR``; none for a map of fewer than
+``REFIT_MIN_BATCH`` (16) fitted texels without ``sigma``). A texel whose :math:`q` lies
 more than :data:`~matfit.fitting.REFIT_SIGMAS` standard deviations of a :math:`\chi^2` per degree of
 freedom above the level (:func:`~matfit.fitting.refit_line`) is solved again, first within its
 chunk from :data:`~matfit.fitting.REFIT_STARTS` screened starts (:func:`~matfit.fitting.fit_arrays`),
@@ -49,7 +50,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ParameterError
-from ..fitting import NOISE_FLOOR, REFIT_STARTS, SUSPECT_FACTOR, fit_arrays, get_family, refit_line
+from ..fitting import NOISE_FLOOR, REFIT_MIN_BATCH, REFIT_STARTS, SUSPECT_FACTOR, fit_arrays, get_family, refit_line
 from ..fitting.params import Parametrization
 
 #: Texels per chunk by default: large enough that the batched solver's per-call overhead is
@@ -87,6 +88,9 @@ class MapResult:
         describe (a scratch, a sensor defect). Their parameters are not to be trusted.
     refitted : int
         Texels solved again from more starts.
+    noise_level : float
+        The residual variance the ends were judged against (1 with ``sigma``; NaN: none, for a
+        map of fewer than 16 fitted texels without ``sigma``).
     wall_time : float
         Seconds of the whole call.
     info : list of str
@@ -116,6 +120,7 @@ class MapResult:
     n_measurements: np.ndarray
     suspect: np.ndarray
     refitted: int
+    noise_level: float
     wall_time: float
     info: list = field(default_factory=list)
 
@@ -179,7 +184,9 @@ class MapResult:
                  f"({self.texels_per_second:.0f} texels/s)",
                  f"  converged {self.converged[self.fitted].mean():.1%}, at a bound {self.at_bound[self.fitted].mean():.1%}, "
                  f"median relative RMSE {np.nanmedian(self.rel_rmse[self.fitted]):.3g}" if n else "  nothing fitted"]
-        if n:
+        if n and not np.isfinite(self.noise_level):
+            lines.append("  no noise level (fewer than 16 texels and no sigma): the ends are not judged")
+        elif n:
             ns = int(self.suspect.sum())
             lines.append(f"  {self.refitted} texels refitted from more starts; " + (
                 f"{ns} ({ns / n:.2%}) still end above 10x the map's noise level: suspect (MapResult.suspect), "
@@ -422,9 +429,15 @@ def fit_map(wo, wi, values, model="diffuse_specular", mask=None, sigma=None, *, 
     # the map's noise level (its texels share a camera): tables far above it are refitted from
     # their neighbours' solutions and from solutions spread over the map, then flagged
     q = 2 * out_obj.astype(float) / out_dof
-    level = 1.0 if sigma is not None else (max(float(np.median(q[fitted])), NOISE_FLOOR**2) if fitted.any() else np.nan)
+    if sigma is not None:
+        level = 1.0
+    elif fitted.sum() >= REFIT_MIN_BATCH:  # fewer texels give no level to speak of
+        level = max(float(np.median(q[fitted])), NOISE_FLOOR**2)
+    else:
+        level = np.nan
+    judged = fitted & np.isfinite(level)
     with np.errstate(invalid="ignore"):
-        redo = np.flatnonzero(fitted & ~(q <= refit_line(out_dof) * level))
+        redo = np.flatnonzero(judged & ~(q <= refit_line(out_dof) * level))
     if redo.size and refit:
         for lo in range(0, redo.size, chunk):
             part = redo[lo:lo + chunk]
@@ -440,7 +453,7 @@ def fit_map(wo, wi, values, model="diffuse_specular", mask=None, sigma=None, *, 
         refitted[0] += redo.size
         q = 2 * out_obj.astype(float) / out_dof
     with np.errstate(invalid="ignore"):
-        out_suspect = fitted & ~(q <= SUSPECT_FACTOR * level)
+        out_suspect = judged & ~(q <= SUSPECT_FACTOR * level)
     refitted = refitted[0]
     span = upper - lower
     near = np.where(np.isfinite(span), 1e-3 * span, 1e-3)
@@ -454,7 +467,7 @@ def fit_map(wo, wi, values, model="diffuse_specular", mask=None, sigma=None, *, 
         family=family, labels=par.labels, params=values_map, stderr=se_map, objective=out_obj.reshape(H, W),
         rel_rmse=out_rel.reshape(H, W), converged=out_ok.reshape(H, W), at_bound=at_bound.reshape(H, W),
         fitted=fitted.reshape(H, W), steps=out_steps.reshape(H, W), n_measurements=n_meas.reshape(H, W).astype(np.int32),
-        suspect=out_suspect.reshape(H, W), refitted=refitted, wall_time=time.perf_counter() - t0, info=info)
+        suspect=out_suspect.reshape(H, W), refitted=refitted, noise_level=level, wall_time=time.perf_counter() - t0, info=info)
 
 
 def _neighbour_starts(out_v, good, idx, H, W, pool=16):
