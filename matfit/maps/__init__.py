@@ -8,11 +8,11 @@
   textures.
 """
 
-from ._fit_map import DEFAULT_CHUNK, MapResult, fit_map, initialize_processes
+from ._fit_map import DEFAULT_CHUNK, LOBE_STARTS, MapResult, fit_map, initialize_processes
 from ._capture import Capture, CaptureError, load_capture, write_capture_document
 from ._images import read_image, write_exr, write_png
 from ._write import FORMATS, GLTF_FAMILIES, gltf_maps, read_maps, write_maps
 
-__all__ = ["DEFAULT_CHUNK", "MapResult", "fit_map", "initialize_processes", "FORMATS", "GLTF_FAMILIES", "gltf_maps",
+__all__ = ["DEFAULT_CHUNK", "LOBE_STARTS", "MapResult", "fit_map", "initialize_processes", "FORMATS", "GLTF_FAMILIES", "gltf_maps",
            "read_maps", "write_maps", "Capture", "CaptureError", "load_capture", "write_capture_document",
            "read_image", "write_exr", "write_png"]
