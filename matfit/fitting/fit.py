@@ -41,7 +41,7 @@ from .params import Parametrization, check_solver_options, reduced_family
 
 __all__ = ["fit", "fit_batch", "fit_arrays", "FitResult", "FitError", "BatchFit", "initial_guess", "initial_guesses",
            "guesses_from_arrays", "fit_starts", "memory_estimate", "SCREEN_PER_START", "REFIT_SIGMAS", "refit_line", "SUSPECT_FACTOR",
-           "REFIT_STARTS", "REFIT_MIN_BATCH", "NOISE_FLOOR"]
+           "REFIT_STARTS", "REFIT_MIN_BATCH", "NOISE_FLOOR", "noise_level"]
 
 
 #: A batch's tables whose residual variance ``q`` ends more than this many of its standard
@@ -78,6 +78,42 @@ def refit_line(dof):
     [3.0, 1.67]
     """
     return 1 + REFIT_SIGMAS * np.sqrt(2 / np.maximum(np.asarray(dof, float), 1))
+
+
+def noise_level(q, known_sigma, scale=1.0):
+    """The level a batch's ends are judged against (:func:`fit_arrays`, :func:`matfit.maps.fit_map`).
+
+    Parameters
+    ----------
+    q : array_like
+        Each table's residual variance, ``2 F / (n - p)``.
+    known_sigma : bool
+        The residuals are weighted by the data's own sigma: the level is 1.
+    scale : float
+        The mean squared value in the residuals' space (1 for relative residuals): the level is
+        floored at ``NOISE_FLOOR**2 * scale``, so that noise-free tables ending at rounding error
+        are not refitted for it.
+
+    Returns
+    -------
+    float
+        1 with known sigma; else the median of the finite ``q``, floored, over at least
+        :data:`REFIT_MIN_BATCH` tables; NaN (no level) for fewer tables or none finite.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit.fitting import noise_level
+    >>> noise_level(np.r_[np.full(15, 1e-4), 1.0], False), noise_level(np.ones(3), False)
+    (0.0001, nan)
+    """
+    if known_sigma:
+        return 1.0
+    q = np.asarray(q, float)
+    ok = q[np.isfinite(q)]
+    if q.size < REFIT_MIN_BATCH or not ok.size:
+        return float("nan")
+    return max(float(np.median(ok)), NOISE_FLOOR**2 * scale)
 
 
 def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust_scale=1.0, fixed=None, tied=(),
@@ -164,8 +200,9 @@ def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust
     obj = np.asarray(obj)
     known = table.sigma is not None and loss == "l2" and robust is None
     chi2 = 2 * float(np.nanmin(obj)) / max(n_res - par.size, 1)
+    line = float(refit_line(n_res - par.size))
     info = []
-    if known and sub is None and not chi2 <= float(refit_line(n_res - par.size)):
+    if known and sub is None and not chi2 <= line:
         # with the table's own sigma the end is judged against the noise: far above it, a false
         # minimum is likely, and more starts (other seeds) are solved; the lower end is kept
         # (tables small enough to be solved whole from every start: a large one's starts end on
@@ -177,7 +214,7 @@ def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust
         if kept:
             z, obj, steps, ok, best, r_best, A, sub = again
             obj = obj2
-        info.append(f"the first end's reduced chi-square {chi2:.4g} was above {float(refit_line(n_res - par.size)):.4g} "
+        info.append(f"the first end's reduced chi-square {chi2:.4g} was above {line:.4g} "
                     f"(the noise's line for the table's sigma): refitted from {n2} more starts, "
                     + ("a lower end found" if kept else "no lower end found"))
     good = np.isfinite(obj) & np.all(np.isfinite(np.asarray(z)), axis=1)
@@ -346,7 +383,7 @@ def _batch_programs(run_full, par, shared):
 
 def fit_arrays(wo, wi, values, weight=None, *, model="plastic", method=DEFAULT_METHOD, loss="l2", fixed=None,
                tied=(), starts=1, max_steps=128, rtol=1e-8, atol=1e-10, dtype=None, valid=None, known_sigma=False,
-               uncertainty=True, refit=True, init=None, noise_level=None, where="fit_arrays") -> BatchFit:
+               uncertainty=True, refit=True, init=None, level=None, where="fit_arrays") -> BatchFit:
     r"""Fit one family to a stack of B small tables given as arrays, in one vectorized call.
 
     The core of :func:`fit_batch` and :func:`matfit.maps.fit_map`: every table gets its own
@@ -384,8 +421,8 @@ def fit_arrays(wo, wi, values, weight=None, *, model="plastic", method=DEFAULT_M
         More candidate starts per table, natural values in the order of the labels (e.g. a
         map's neighbouring solutions; NaN: none), screened with the random candidates (of the
         first solve when ``starts > 1``, and of a refit).
-    noise_level : float, optional
-        The level to compare the ends with (default: from the batch, above).
+    level : float, optional
+        The noise level to compare the ends with (default: the batch's, :func:`noise_level`).
 
     Returns
     -------
@@ -437,17 +474,9 @@ def fit_arrays(wo, wi, values, weight=None, *, model="plastic", method=DEFAULT_M
         if starts > 1 else jnp.asarray(base[:, None, :])
     zb, objective_b, steps_b, ok_b, A = _solve_stack(run, z0, arrays)
     q = 2 * objective_b.astype(float) / dof
-    if noise_level is not None:
-        level = float(noise_level)
-    elif known_sigma:
-        level = 1.0
-    elif B >= REFIT_MIN_BATCH and np.isfinite(q).any():
-        # floored at a residual RMS of NOISE_FLOOR of the values (residual space: 1 for the
-        # relative loss): noise-free tables end at rounding error and are not refitted for it
+    if level is None:
         scale = 1.0 if loss == "relative" else float(np.median(np.sum(w * values**2, axis=(1, 2)) / np.maximum(n_res, 1)))
-        level = max(float(np.median(q[np.isfinite(q)])), NOISE_FLOOR**2 * scale)
-    else:
-        level = np.nan
+        level = noise_level(q, known_sigma, scale)
     redo = np.flatnonzero(~(q <= refit_line(dof) * level)) if refit and np.isfinite(level) else np.array([], int)
     if redo.size:
         # padded to a power of two: refits of nearby counts share one compiled program
@@ -496,8 +525,8 @@ def _init_z(par, to_z, init, base):
     lo, hi = par.lower_upper()
     span = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
     missing = ~np.isfinite(v).all(axis=2)
-    v = np.clip(np.where(missing[..., None], (lo + hi) / 2 if np.isfinite(span).all() else 0.0, v),
-                lo + 1e-3 * span, hi - 1e-3 * span)
+    # a missing start's values are a placeholder inside the box (replaced by base below)
+    v = np.clip(np.where(missing[..., None], lo + span / 2, v), lo + 1e-3 * span, hi - 1e-3 * span)
     B, k, p = v.shape
     z = np.asarray(to_z(par.split(jnp.asarray(v.reshape(B * k, p), float)))).reshape(B, k, p)
     return np.where(missing[..., None], base[:, None, :], z).astype(base.dtype)

@@ -50,7 +50,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ParameterError
-from ..fitting import NOISE_FLOOR, REFIT_MIN_BATCH, REFIT_STARTS, SUSPECT_FACTOR, fit_arrays, get_family, refit_line
+from ..fitting import REFIT_STARTS, SUSPECT_FACTOR, fit_arrays, get_family, noise_level, refit_line
 from ..fitting.params import Parametrization
 
 #: First-pass starts per texel of a family with a second lobe (``fit_map``'s ``starts``).
@@ -442,21 +442,18 @@ def fit_map(wo, wi, values, model="diffuse_specular", mask=None, sigma=None, *, 
     # the map's noise level (its texels share a camera): tables far above it are refitted from
     # their neighbours' solutions and from solutions spread over the map, then flagged
     q = 2 * out_obj.astype(float) / out_dof
-    if sigma is not None:
-        level = 1.0
-    elif fitted.sum() >= REFIT_MIN_BATCH:  # fewer texels give no level to speak of
-        level = max(float(np.median(q[fitted])), NOISE_FLOOR**2)
-    else:
-        level = np.nan
+    level = noise_level(q[fitted], sigma is not None)  # relative residuals: the floor's scale is 1
     judged = fitted & np.isfinite(level)
     with np.errstate(invalid="ignore"):
-        redo = np.flatnonzero(judged & ~(q <= refit_line(out_dof) * level))
+        above = judged & ~(q <= refit_line(out_dof) * level)
+    redo = np.flatnonzero(above)
     if redo.size and refit:
+        good = fitted & ~above
         for lo in range(0, redo.size, chunk):
             part = redo[lo:lo + chunk]
             sel = np.concatenate([part, np.repeat(part[-1:], (1 << int(part.size - 1).bit_length()) - part.size)])
-            init = _neighbour_starts(out_v, fitted & (q <= refit_line(out_dof) * level), sel, H, W)
-            res = run_rows(sel, starts=REFIT_STARTS, init=init, refit=False, noise_level=level)
+            init = _neighbour_starts(out_v, good, sel, H, W)
+            res = run_rows(sel, starts=REFIT_STARTS, init=init, refit=False, level=level)
             n = part.size
             better = np.flatnonzero(res["objective"][:n] < out_obj[part])
             t = part[better]
