@@ -35,7 +35,7 @@ from .errors import MatfitError
 BATCH_AXIS = "batch"
 
 __all__ = ["BATCH_AXIS", "use_host_devices", "use_cores", "for_small_calls", "batch_mesh", "batch_sharding",
-           "shard_batch", "device_count"]
+           "shard_batch", "device_count", "pad_to_power_of_two"]
 
 
 def _backend_started():
@@ -287,6 +287,33 @@ def batch_sharding(devices=None) -> NamedSharding:
     (('batch',), (4, 3))
     """
     return NamedSharding(batch_mesh(devices), PartitionSpec(BATCH_AXIS))
+
+
+def pad_to_power_of_two(idx, size=None):
+    """``idx`` padded to ``size`` entries (default: the next power of two) by repeating its last.
+
+    Batches of nearby sizes then share one compiled program; results are valid in ``[:len(idx)]``.
+
+    Parameters
+    ----------
+    idx : array_like (n,), n >= 1
+        Indices of the batch's items.
+    size : int, optional
+        The padded length (>= n).
+
+    Returns
+    -------
+    numpy.ndarray
+
+    Examples
+    --------
+    >>> from matfit.parallel import pad_to_power_of_two
+    >>> pad_to_power_of_two([4, 7, 9]).tolist(), pad_to_power_of_two([4], 3).tolist()
+    ([4, 7, 9, 9], [4, 4, 4])
+    """
+    idx = np.asarray(idx)
+    size = 1 << int(idx.size - 1).bit_length() if size is None else int(size)
+    return np.concatenate([idx, np.repeat(idx[-1:], size - idx.size)])
 
 
 def shard_batch(tree, devices=None, fill=None):

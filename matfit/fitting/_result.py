@@ -175,7 +175,7 @@ class BatchFit:
         a false minimum or a model that does not describe them (all False without a level).
     noise_level : float
         The residual variance the ends are compared with (1 with known sigma; NaN: none).
-    refitted : int
+    refitted : numpy.ndarray (B,) of bool
         Tables solved again from more starts.
 
     Examples
@@ -197,4 +197,4 @@ class BatchFit:
     n_residuals: np.ndarray
     suspect: np.ndarray = None
     noise_level: float = float("nan")
-    refitted: int = 0
+    refitted: np.ndarray = None

@@ -24,7 +24,7 @@ import numpy as np
 from ..cache import loop_jit
 from ..errors import ParameterError
 from ..fast import supports_soa
-from ..parallel import device_count
+from ..parallel import device_count, pad_to_power_of_two
 from ..table import Table
 from . import _solver as solvers
 from ._memory import available_memory, check_memory, memory_estimate
@@ -479,8 +479,7 @@ def fit_arrays(wo, wi, values, weight=None, *, model="plastic", method=DEFAULT_M
         level = noise_level(q, known_sigma, scale)
     redo = np.flatnonzero(~(q <= refit_line(dof) * level)) if refit and np.isfinite(level) else np.array([], int)
     if redo.size:
-        # padded to a power of two: refits of nearby counts share one compiled program
-        sel = np.concatenate([redo, np.repeat(redo[-1:], (1 << int(redo.size - 1).bit_length()) - redo.size)])
+        sel = pad_to_power_of_two(redo)  # refits of nearby counts share one compiled program
         extra = None if init_z is None else init_z[sel]
         z1 = screened_starts(objective, par, base[sel], REFIT_STARTS, 1, full(sel), batched=True, extra=extra)
         sub = (dirs if shared else tuple(d[sel] for d in dirs)) + tuple(a[sel] for a in arrays[2:])
@@ -493,6 +492,8 @@ def fit_arrays(wo, wi, values, weight=None, *, model="plastic", method=DEFAULT_M
                                                             ok_r[better], A_r[better])
         q = 2 * objective_b.astype(float) / dof
     suspect = q > SUSPECT_FACTOR * level if np.isfinite(level) else np.zeros(B, bool)
+    refitted = np.zeros(B, bool)
+    refitted[redo] = True
     vals, dtheta = (np.asarray(a) for a in post(jnp.asarray(zb)))
     se = np.full(vals.shape, np.nan)
     if uncertainty:
@@ -503,7 +504,7 @@ def fit_arrays(wo, wi, values, weight=None, *, model="plastic", method=DEFAULT_M
         se = np.sqrt(np.clip(np.diagonal(cov, axis1=1, axis2=2), 0, None))
     return BatchFit(labels=par.labels, values=vals, stderr=se, objective=objective_b, steps=steps_b,
                     converged=ok_b.astype(bool), n_residuals=n_res, suspect=suspect, noise_level=level,
-                    refitted=int(redo.size))
+                    refitted=refitted)
 
 
 def _solve_stack(run, z0, arrays):

@@ -52,6 +52,7 @@ import numpy as np
 from ..errors import ParameterError
 from ..fitting import REFIT_STARTS, SUSPECT_FACTOR, fit_arrays, get_family, noise_level, refit_line
 from ..fitting.params import Parametrization
+from ..parallel import pad_to_power_of_two
 
 #: First-pass starts per texel of a family with a second lobe (``fit_map``'s ``starts``).
 LOBE_STARTS = 4
@@ -90,7 +91,7 @@ class MapResult:
         level after every refit (module doc): a false minimum, or a texel the family does not
         describe (a scratch, a sensor defect). Their parameters are not to be trusted.
     refitted : int
-        Texels solved again from more starts.
+        Texels solved again from more starts (each counted once, whichever passes refitted it).
     noise_level : float
         The residual variance the ends were judged against (1 with ``sigma``; NaN: none, for a
         map of fewer than 16 fitted texels without ``sigma``).
@@ -369,12 +370,12 @@ def fit_map(wo, wi, values, model="diffuse_specular", mask=None, sigma=None, *, 
     out_steps = np.zeros(H * W, np.int32)
     out_ok = np.zeros(H * W, bool)
     out_dof = np.ones(H * W, np.int64)
-    refitted = [0]
+    out_refit = np.zeros(H * W, bool)
     lower, upper = par.lower_upper()
 
     def run_chunk(k):
         idx = todo[k * chunk:(k + 1) * chunk]
-        return run_rows(np.concatenate([idx, np.repeat(idx[-1:], chunk - len(idx))]), refit=refit, starts=starts)
+        return run_rows(pad_to_power_of_two(idx, chunk), refit=refit, starts=starts)
 
     def run_rows(idx, **kw):
         """Fit texels ``idx`` (flat indices); ``kw`` goes to fit_arrays (the refit's starts)."""
@@ -409,7 +410,7 @@ def fit_map(wo, wi, values, model="diffuse_specular", mask=None, sigma=None, *, 
         return {"values": r.values.astype(np.float32), "stderr": r.stderr.astype(np.float32),
                 "objective": r.objective.astype(np.float32), "rel": rel.astype(np.float32),
                 "steps": r.steps.astype(np.int32), "converged": r.converged,
-                "refitted": np.full(n_rows, r.refitted, np.int32), "dof": np.maximum(n_use - p, 1)}
+                "refitted": r.refitted, "dof": np.maximum(n_use - p, 1)}
 
     def store(k, res):
         idx = todo[k * chunk:(k + 1) * chunk]
@@ -417,7 +418,7 @@ def fit_map(wo, wi, values, model="diffuse_specular", mask=None, sigma=None, *, 
         out_v[idx], out_se[idx] = res["values"][:n], res["stderr"][:n]
         out_obj[idx], out_rel[idx] = res["objective"][:n], res["rel"][:n]
         out_steps[idx], out_ok[idx] = res["steps"][:n], res["converged"][:n]
-        out_dof[idx], refitted[0] = res["dof"][:n], refitted[0] + int(res["refitted"][0])
+        out_dof[idx], out_refit[idx] = res["dof"][:n], res["refitted"][:n]
 
     bar = _progress_bar(progress, len(todo))
     P, me = _processes()
@@ -451,7 +452,7 @@ def fit_map(wo, wi, values, model="diffuse_specular", mask=None, sigma=None, *, 
         good = fitted & ~above
         for lo in range(0, redo.size, chunk):
             part = redo[lo:lo + chunk]
-            sel = np.concatenate([part, np.repeat(part[-1:], (1 << int(part.size - 1).bit_length()) - part.size)])
+            sel = pad_to_power_of_two(part)
             init = _neighbour_starts(out_v, good, sel, H, W)
             res = run_rows(sel, starts=REFIT_STARTS, init=init, refit=False, level=level)
             n = part.size
@@ -460,11 +461,11 @@ def fit_map(wo, wi, values, model="diffuse_specular", mask=None, sigma=None, *, 
             out_v[t], out_se[t], out_obj[t], out_rel[t] = (res["values"][better], res["stderr"][better],
                                                            res["objective"][better], res["rel"][better])
             out_steps[t], out_ok[t] = out_steps[t] + res["steps"][better], res["converged"][better]
-        refitted[0] += redo.size
+        out_refit[redo] = True
         q = 2 * out_obj.astype(float) / out_dof
     with np.errstate(invalid="ignore"):
         out_suspect = judged & ~(q <= SUSPECT_FACTOR * level)
-    refitted = refitted[0]
+    refitted = int(out_refit.sum())  # distinct texels, whichever passes refitted them
     span = upper - lower
     near = np.where(np.isfinite(span), 1e-3 * span, 1e-3)
     with np.errstate(invalid="ignore"):
@@ -586,7 +587,7 @@ def _gather(local, n_chunks, P, chunk, p, store):
     blank = {"values": np.zeros((chunk, p), np.float32), "stderr": np.zeros((chunk, p), np.float32),
              "objective": np.zeros(chunk, np.float32), "rel": np.zeros(chunk, np.float32),
              "steps": np.zeros(chunk, np.int32), "converged": np.zeros(chunk, bool),
-             "refitted": np.zeros(chunk, np.int32), "dof": np.ones(chunk, np.int64)}
+             "refitted": np.zeros(chunk, bool), "dof": np.ones(chunk, np.int64)}
     stacked = {k: np.stack([r[k] for r in local] + [blank[k]] * (per - len(local))) for k in blank}
     gathered = multihost_utils.process_allgather(stacked)  # leaves (P, per, chunk, ...)
     for q in range(P):
