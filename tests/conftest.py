@@ -70,7 +70,7 @@ CHECK_TIER = {
 
 
 #: XLA flags of the test session (compile time first; pytest_configure)
-TEST_XLA_FLAGS = ("--xla_backend_optimization_level=0", "--xla_llvm_disable_expensive_passes=true")
+TEST_XLA_FLAGS = ("--xla_llvm_disable_expensive_passes=true",)
 
 
 def pytest_configure(config):
@@ -85,7 +85,7 @@ def pytest_configure(config):
     # LLVM's optimization effort is lowered for the tests (the same semantics: XLA's CPU backend
     # does no fast-math at any level); MATFIT_TEST_FULL_OPT=1 runs the suite at the default level,
     # as users and the benchmarks do
-    if os.environ.get("MATFIT_TEST_FULL_OPT") != "1" and "--xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
+    if os.environ.get("MATFIT_TEST_FULL_OPT") != "1" and TEST_XLA_FLAGS[0] not in os.environ.get("XLA_FLAGS", ""):
         os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + " ".join(TEST_XLA_FLAGS)).strip()
     # one JAX persistent compilation cache for the session, in a fresh folder shared by the xdist
     # workers: a program that both workers (or two tests building the same program afresh)

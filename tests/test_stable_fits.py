@@ -342,3 +342,57 @@ def test_end_far_above_the_tables_sigma_is_refitted():
     assert any("refitted from 8 more starts, a lower end found" in x for x in r.info), r.info
     assert abs(float(r.params["alpha"]) / alpha - 1) < 0.02 and r.ok
     assert 2 * r.objective / r.dof < 1.7
+
+
+# --------------------------------------------------------------------------------------------
+# Warnings: none on a correctly specified table; each class where it must fire
+# --------------------------------------------------------------------------------------------
+#: interior truths (no parameter near a bound) of the families of issue #39's recovery matrix
+WARN_FREE = {
+    "conductor": dict(alpha=0.2, eta=[0.2, 0.9, 1.4], k=[3.6, 2.5, 1.9]),
+    "dielectric": dict(alpha=0.12, eta=1.6),
+    "plastic": dict(albedo=[0.2, 0.5, 0.7], alpha=0.15, eta=1.5),
+    "diffuse_specular": dict(albedo=[0.3, 0.4, 0.6], f0=[0.05, 0.06, 0.08], alpha=0.25),
+    "lobes2": dict(albedo=[0.3, 0.4, 0.6], alpha_1=0.08, ks_1=[0.5, 0.5, 0.6], f0=0.1, ratio_2=4.0,
+                   ks_2=[0.3, 0.3, 0.3]),
+}
+
+
+@pytest.mark.parametrize("noise", ["multiplicative", "additive"])
+@pytest.mark.parametrize("family", list(WARN_FREE))
+def test_a_correctly_specified_table_warns_nothing(family, noise):
+    """The default call on a table the family describes, with 1 % noise of either kind and no
+    sigma: converged, no warning, the truth within 4 standard errors."""
+    from matfit.fitting import get_family
+
+    wo, wi = _dirs()
+    truth = {k: np.asarray(v, float) for k, v in WARN_FREE[family].items()}
+    f = np.broadcast_to(np.asarray(get_family(family).build(truth, 3).eval(wo, wi), float), (len(wo), 3))
+    rng = np.random.default_rng(7)
+    e = rng.standard_normal(f.shape)
+    y = f * (1 + 0.01 * e) if noise == "multiplicative" else f + 0.01 * np.median(f) * e
+    r = fit(Table(wo=wo, wi=wi, values=y), model=family)
+    assert r.ok and not r.warnings, r.summary()
+    for k, v in truth.items():
+        est = np.atleast_1d(r.params[k])
+        se = np.array([r.stderr[r.labels.index(lab)] for lab in r.labels if lab.split("[")[0] == k])
+        assert np.all(np.abs(est - v) <= 4 * se + 1e-9), (k, est, v, se)
+
+
+def test_not_converged_fires():
+    r = fit(_cond_table(), model="conductor", starts=1, max_steps=2)
+    assert not r.converged and not r.ok
+    assert any(w.startswith("not converged") and "max_steps=2" in w for w in r.warnings), r.warnings
+
+
+def test_multiple_optima_fires():
+    """Two starts at the same objective (within 0.1 %) and parameters 10 standard errors apart."""
+    from matfit.fitting.diagnostics import diagnose
+
+    kw = dict(labels=["a", "b"], values=np.array([0.3, 0.5]), stderr=np.array([0.01, 0.01]),
+              lower=np.zeros(2), upper=np.ones(2), residuals=np.full(20, 0.1), converged=True, steps=5,
+              max_steps=64, known_sigma=False, dof=18, Jt=np.eye(20, 2))
+    out, _ = diagnose(**kw, start_values=np.array([[0.3, 0.5], [0.4, 0.5]]), start_objectives=np.array([1.0, 1.0005]))
+    assert any(w.startswith("multiple optima") for w in out), out
+    out, _ = diagnose(**kw, start_values=np.array([[0.3, 0.5], [0.4, 0.5]]), start_objectives=np.array([1.0, 1.01]))
+    assert not any(w.startswith("multiple optima") for w in out), out  # a worse end is another minimum, not the same
