@@ -69,10 +69,6 @@ CHECK_TIER = {
 }
 
 
-#: XLA flags of the test session (compile time first; pytest_configure)
-TEST_XLA_FLAGS = ("--xla_llvm_disable_expensive_passes=true",)
-
-
 def pytest_configure(config):
     # float64 is on for the whole session, switched once here (float32 tests pass float32
     # arrays and parameters explicitly); no test module switches it at import
@@ -81,12 +77,6 @@ def pytest_configure(config):
     # write into the user's cache nor change how the rest of the session compiles
     # (tests/test_cache.py tests the cache in subprocesses of its own)
     os.environ["MATFIT_NO_CACHE"] = "1"
-    # the suite is bound by XLA's compiler (a fit's program: 7.4 s to compile, 0.09 s to run), so
-    # LLVM's optimization effort is lowered for the tests (the same semantics: XLA's CPU backend
-    # does no fast-math at any level); MATFIT_TEST_FULL_OPT=1 runs the suite at the default level,
-    # as users and the benchmarks do
-    if os.environ.get("MATFIT_TEST_FULL_OPT") != "1" and TEST_XLA_FLAGS[0] not in os.environ.get("XLA_FLAGS", ""):
-        os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + " ".join(TEST_XLA_FLAGS)).strip()
     # one JAX persistent compilation cache for the session, in a fresh folder shared by the xdist
     # workers: a program that both workers (or two tests building the same program afresh)
     # compile is compiled once and loaded after; removed when the session ends

@@ -396,3 +396,21 @@ def test_multiple_optima_fires():
     assert any(w.startswith("multiple optima") for w in out), out
     out, _ = diagnose(**kw, start_values=np.array([[0.3, 0.5], [0.4, 0.5]]), start_objectives=np.array([1.0, 1.01]))
     assert not any(w.startswith("multiple optima") for w in out), out  # a worse end is another minimum, not the same
+
+
+def test_standard_errors_without_sigma_cover_under_multiplicative_noise():
+    """Without sigma the noise may grow with the value: the sandwich standard errors cover the
+    truth as they claim (the Gauss-Newton form, which assumes one noise size, covered alpha and
+    eta 36 % and 52 % of the time at a nominal 90 % here; the sandwich 87 % and 92 %)."""
+    from matfit.fitting import get_family
+
+    wo, wi = _dirs()
+    truth = WARN_FREE["dielectric"]
+    f = np.broadcast_to(np.asarray(get_family("dielectric").build(truth, 3).eval(wo, wi), float), (len(wo), 3))
+    rng = np.random.default_rng(1)
+    hits = []
+    for _ in range(100):
+        r = fit(Table(wo=wo, wi=wi, values=f * (1 + 0.01 * rng.standard_normal(f.shape))), model="dielectric")
+        hits.append(np.abs(r.values - [truth["alpha"], truth["eta"]]) <= 1.645 * r.stderr)
+    cover = np.mean(hits, axis=0)
+    assert np.all((cover >= 0.8) & (cover <= 0.98)), cover  # 90 % nominal; binomial sd 3 points

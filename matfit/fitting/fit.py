@@ -41,7 +41,7 @@ from .params import Parametrization, check_solver_options, reduced_family
 
 __all__ = ["fit", "fit_batch", "fit_arrays", "FitResult", "FitError", "BatchFit", "initial_guess", "initial_guesses",
            "guesses_from_arrays", "fit_starts", "memory_estimate", "SCREEN_PER_START", "REFIT_SIGMAS", "refit_line", "SUSPECT_FACTOR",
-           "REFIT_STARTS", "REFIT_MIN_BATCH", "NOISE_FLOOR", "noise_level"]
+           "REFIT_STARTS", "REFIT_MIN_BATCH", "NOISE_FLOOR", "noise_level", "covariance", "SANDWICH_MAX", "LEVERAGE_MAX"]
 
 
 #: A batch's tables whose residual variance ``q`` ends more than this many of its standard
@@ -56,6 +56,69 @@ REFIT_STARTS = 8
 REFIT_MIN_BATCH = 16
 #: The lowest noise level, as a relative residual RMS: below it ends are rounding error.
 NOISE_FLOOR = 1e-5
+#: Tables of at most this many residuals (held whole as a Jacobian) get sandwich standard errors
+#: without sigma (:func:`covariance`); larger ones the Gauss-Newton form.
+SANDWICH_MAX = 200_000
+#: The largest leverage of one residual in the sandwich (a row that alone fixes a parameter).
+LEVERAGE_MAX = 0.9
+
+
+def covariance(gram, rss, dof, known_sigma, jac=None, res=None):
+    r"""The covariance of least-squares parameters, in the parameters of ``gram`` and ``jac``.
+
+    With the data's own sigma, :math:`(J^T J)^{-1}`. Without it, and given the Jacobian and the
+    residuals, the sandwich (HC3, MacKinnon & White 1985) :math:`B\, J^T \mathrm{diag}(u^2) J\, B`
+    with :math:`B = (J^T J)^{-1}` and :math:`u_i = r_i / (1 - h_i)`, :math:`h_i = J_i B J_i^T`
+    (each row's leverage, capped at :data:`LEVERAGE_MAX`): right whether the noise is the same on
+    every residual or grows with the value (a measurement's typical noise), where
+    :math:`\hat\sigma^2 B` (:math:`\hat\sigma^2` = ``rss / dof``, used without ``jac``) is off
+    by the ratio of the peak's noise to the mean (4-8x on 1 % multiplicative noise).
+
+    Parameters
+    ----------
+    gram : array_like (p, p), or (B, p, p) without ``jac``
+        :math:`J^T J`.
+    rss : float, or (B,)
+        The residual sum of squares.
+    dof : int, or (B,)
+        Residuals less parameters.
+    known_sigma : bool
+        The residuals are in units of the data's sigma.
+    jac : array_like (n, p), optional
+        The Jacobian of the residuals.
+    res : array_like (n,), optional
+        The residuals, in the rows of ``jac``.
+
+    Returns
+    -------
+    numpy.ndarray (p, p)
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit.fitting import covariance
+    >>> x = np.linspace(1, 2, 200); J = np.stack([np.ones_like(x), x], 1)  # a line's two coefficients
+    >>> r = 0.01 * x * np.random.default_rng(0).standard_normal(200)        # noise that grows with x
+    >>> gn, hc = (np.sqrt(np.diag(covariance(J.T @ J, r @ r, 198, False, *a))) for a in ((), (J, r)))
+    >>> bool(hc[1] > gn[1])
+    True
+    """
+    bread = np.linalg.pinv(np.asarray(gram, float), hermitian=True)
+    if known_sigma:
+        return bread
+    if jac is None:  # also a stack of tables: gram (B, p, p), rss and dof (B,)
+        return (np.asarray(rss, float) / np.maximum(dof, 1))[..., None, None] * bread
+    h = np.einsum("ij,jk,ik->i", jac, bread, jac)
+    u = res / (1 - np.clip(h, 0, LEVERAGE_MAX))
+    meat = jac * u[:, None]
+    return bread @ (meat.T @ meat) @ bread
+
+
+@functools.lru_cache(maxsize=32)
+def _jacobian_program(par, loss, robust, scale):
+    """A jitted ``(z, arrays) -> (residuals (n,), Jacobian (n, p) in z)`` of one configuration."""
+    fn = residual_fn(par, loss, robust, scale)
+    return jax.jit(lambda z, a: (fn(z, a), jax.jacfwd(fn)(z, a)))
 
 
 def refit_line(dof):
@@ -231,8 +294,12 @@ def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust
     At = np.asarray(A, float) * np.outer(inv_d, inv_d)  # J^T J in the natural parameters
     rss = float(2 * obj[best])
     dof = n_res - par.size
-    s2 = 1.0 if known else rss / max(dof, 1)
-    cov = s2 * np.linalg.pinv(At)
+    jr = None
+    if not known and robust is None and sub is None and n_rows * C <= SANDWICH_MAX:
+        # the noise's size per residual is unknown (it may grow with the value): the sandwich
+        res, jz = _jacobian_program(par, loss, robust, float(robust_scale))(jnp.asarray(zb), arrays)
+        jr = (np.asarray(jz, float) * inv_d, np.asarray(res, float))
+    cov = covariance(At, rss, dof, known, *(jr or ()))
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
     values = np.asarray(post["values"])
     lower, upper = par.lower_upper()
@@ -499,8 +566,7 @@ def fit_arrays(wo, wi, values, weight=None, *, model="plastic", method=DEFAULT_M
     if uncertainty:
         inv_d = 1 / np.where(dtheta != 0, dtheta, np.inf)
         At = np.asarray(A, float) * inv_d[:, :, None] * inv_d[:, None, :]
-        s2 = np.ones(B) if known_sigma else 2 * objective_b.astype(float) / dof
-        cov = s2[:, None, None] * np.linalg.pinv(At, hermitian=True)
+        cov = covariance(At, 2 * objective_b.astype(float), dof, known_sigma)
         se = np.sqrt(np.clip(np.diagonal(cov, axis1=1, axis2=2), 0, None))
     return BatchFit(labels=par.labels, values=vals, stderr=se, objective=objective_b, steps=steps_b,
                     converged=ok_b.astype(bool), n_residuals=n_res, suspect=suspect, noise_level=level,
