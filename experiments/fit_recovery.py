@@ -58,7 +58,7 @@ def one_table(family, n, noise, rng):
     model = get_family(family).build({k: np.asarray(v) for k, v in truth.items()}, 3)
     clean = np.broadcast_to(np.asarray(model.eval(wo, wi), float), (n, 3))
     sigma = NOISE * (clean if noise == "multiplicative" else np.full_like(clean, np.median(clean)))
-    sigma = np.maximum(sigma, 1e-12)
+    sigma = np.maximum(sigma, 1e-30)  # a value of exactly 0 (none here) keeps a positive sigma
     noisy = clean + sigma * rng.standard_normal(clean.shape)
     return Table(wo=wo, wi=wi, values=noisy, sigma=sigma), truth, clean
 

@@ -22,7 +22,10 @@ outliers               residuals beyond :data:`OUTLIER_Z` robust standard deviat
                        classed as additive or proportional to the value (the model whose
                        standardized residuals have the lighter tail beyond 3 robust standard
                        deviations), and the residuals are standardized by it: noise of a
-                       few per cent of the value is not a set of outliers.
+                       few per cent of the value is not a set of outliers. Fitted without
+                       sigma, a small value's residual also carries the fitted curve's own
+                       uncertainty there (the peak's noise moves it), and the proportional
+                       scale includes it.
 poor fit               with the table's own sigma: reduced :math:`\chi^2` above
                        :data:`CHI2_MAX`.
 multiple optima        another start reached an objective within 0.1 % of the best at
@@ -53,14 +56,25 @@ OUTLIER_Z = 6.0
 CHI2_MAX = 3.0
 
 
-def _standardized(r, scale, data_scale):
+def _standardized(r, scale, data_scale, fit_var=None):
     """``(|z|, kind)``: the residuals over a robust noise scale, additive or proportional to
-    ``scale``, whichever leaves the lighter tail beyond 3 (None when the spread is rounding)."""
+    ``scale``, whichever leaves the lighter tail beyond 3 (None when the spread is rounding).
+
+    With ``fit_var`` (each fitted value's variance from the parameters' covariance) the
+    proportional scale is :math:`\sqrt{s_i^2 + v_i / c^2}`, ``c`` the residuals' relative
+    spread: where a fit weighted every residual alike (no sigma), the noise of the peak moves the
+    fitted curve by more than the small values' own noise, and their residuals follow it."""
     best = None
     models = [("additive", None)]  # the residuals as they are: no array of ones to divide by
     if scale is not None:
         floor = 1e-3 * max(float(_median_of_copy(scale)), 1e-300)  # a zero value keeps a finite scale
-        models.append(("proportional", scale.astype(r.dtype, copy=False) + floor))
+        s = scale.astype(r.dtype, copy=False) + floor
+        if fit_var is not None:
+            x = r / s
+            c = 1.4826 * _median_of_copy(np.abs(x - _median_of_copy(x)))
+            if c > 0:
+                s = np.sqrt(s * s + fit_var.astype(r.dtype, copy=False) / (c * c))
+        models.append(("proportional", s))
     for kind, s in models:
         x = r if s is None else r / s
         dev = np.abs(x - _median_of_copy(x))
@@ -147,7 +161,7 @@ def _median_of_copy(a):
 
 def diagnose(*, labels, values, stderr, lower, upper, residuals, converged, steps, max_steps, known_sigma,
              dof, Jt=None, gram=None, data_scale=0.0, start_values=None, start_objectives=None, best=0,
-             start_reference=None, start_stderr=None, scale=None, physical=None):
+             start_reference=None, start_stderr=None, scale=None, physical=None, fit_var=None):
     """Warnings (list of str) about a fit's optimum; see the module docstring for each check.
 
     All arguments are keywords.
@@ -194,6 +208,10 @@ def diagnose(*, labels, values, stderr, lower, upper, residuals, converged, step
         The measured values in the residuals' space and layout (the loss's target times the
         square root of the weight): the scale of noise proportional to the value. Without it
         the noise is taken as additive.
+    fit_var : array_like, optional
+        The variance of each fitted value (in the residuals' layout) from the parameters'
+        covariance: widens the proportional noise scale where the fit's own uncertainty exceeds
+        the value's noise (small values beside a peak, fitted without sigma).
     start_reference, start_stderr : ndarray (p,), optional
         Where and at which standard errors the starts are compared (default: ``values`` and
         ``stderr``). A large table's starts are compared where they ended on its subset
@@ -244,8 +262,9 @@ def diagnose(*, labels, values, stderr, lower, upper, residuals, converged, step
     keep = r_all != 0
     r = r_all[keep].astype(np.result_type(r_all.dtype, np.float32), copy=False)  # float32 stays float32 (medians of millions)
     if r.size >= 8:
-        z, kind = _standardized(r, None if scale is None else np.abs(np.asarray(scale)).reshape(-1)[keep.reshape(-1)],
-                                data_scale)
+        flat = keep.reshape(-1)
+        z, kind = _standardized(r, None if scale is None else np.abs(np.asarray(scale)).reshape(-1)[flat], data_scale,
+                                None if fit_var is None else np.asarray(fit_var).reshape(-1)[flat])
         if z is not None:
             n_out = int(np.count_nonzero(z > OUTLIER_Z))
             # Gaussian noise gives P(|z| > 6) ~ 2e-9: a handful is already significant

@@ -301,6 +301,8 @@ def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust
         jr = (np.asarray(jz, float) * inv_d, np.asarray(res, float))
     cov = covariance(At, rss, dof, known, *(jr or ()))
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
+    # each fitted value's variance from the parameters' (diagnostics: the noise scale of small values)
+    fit_var = None if jr is None else np.einsum("ij,jk,ik->i", jr[0], cov, jr[0])
     values = np.asarray(post["values"])
     lower, upper = par.lower_upper()
     data_scale = float(_weighted_rms(arrays[2], arrays[3]))
@@ -318,7 +320,7 @@ def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust
         converged=bool(np.asarray(ok)[best]), steps=int(np.asarray(steps)[best]), max_steps=int(max_steps),
         known_sigma=known, dof=n_res - par.size,
         data_scale=data_scale, best=best, scale=_value_scale(arrays, loss, robust),
-        physical=par.physical_bounds(), **start_kw)
+        physical=par.physical_bounds(), fit_var=fit_var, **start_kw)
     se = np.where(np.isin(par.labels, unident), np.inf, se)
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(se, se)
