@@ -57,7 +57,7 @@ CHI2_MAX = 3.0
 
 
 def _standardized(r, scale, data_scale, fit_var=None):
-    """``(|z|, kind)``: the residuals over a robust noise scale, additive or proportional to
+    r"""``(|z|, kind)``: the residuals over a robust noise scale, additive or proportional to
     ``scale``, whichever leaves the lighter tail beyond 3 (None when the spread is rounding).
 
     With ``fit_var`` (each fitted value's variance from the parameters' covariance) the
