@@ -358,16 +358,21 @@ WARN_FREE = {
 }
 
 
+def _family_values(family):
+    """``(wo, wi, truth, values (144, 3))``: the family at its WARN_FREE truth on the 144 rows."""
+    from matfit.fitting import get_family
+
+    wo, wi = _dirs()
+    truth = {k: np.asarray(v, float) for k, v in WARN_FREE[family].items()}
+    return wo, wi, truth, np.broadcast_to(np.asarray(get_family(family).build(truth, 3).eval(wo, wi), float), (len(wo), 3))
+
+
 @pytest.mark.parametrize("noise", ["multiplicative", "additive"])
 @pytest.mark.parametrize("family", list(WARN_FREE))
 def test_a_correctly_specified_table_warns_nothing(family, noise):
     """The default call on a table the family describes, with 1 % noise of either kind and no
     sigma: converged, no warning, the truth within 4 standard errors."""
-    from matfit.fitting import get_family
-
-    wo, wi = _dirs()
-    truth = {k: np.asarray(v, float) for k, v in WARN_FREE[family].items()}
-    f = np.broadcast_to(np.asarray(get_family(family).build(truth, 3).eval(wo, wi), float), (len(wo), 3))
+    wo, wi, truth, f = _family_values(family)
     rng = np.random.default_rng(7)
     e = rng.standard_normal(f.shape)
     y = f * (1 + 0.01 * e) if noise == "multiplicative" else f + 0.01 * np.median(f) * e
@@ -402,11 +407,7 @@ def test_standard_errors_without_sigma_cover_under_multiplicative_noise():
     """Without sigma the noise may grow with the value: the sandwich standard errors cover the
     truth as they claim (the Gauss-Newton form, which assumes one noise size, covered alpha and
     eta 36 % and 52 % of the time at a nominal 90 % here; the sandwich 87 % and 92 %)."""
-    from matfit.fitting import get_family
-
-    wo, wi = _dirs()
-    truth = WARN_FREE["dielectric"]
-    f = np.broadcast_to(np.asarray(get_family("dielectric").build(truth, 3).eval(wo, wi), float), (len(wo), 3))
+    wo, wi, truth, f = _family_values("dielectric")
     rng = np.random.default_rng(1)
     hits = []
     for _ in range(100):

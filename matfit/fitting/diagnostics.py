@@ -70,15 +70,12 @@ def _standardized(r, scale, data_scale, fit_var=None):
         floor = 1e-3 * max(float(_median_of_copy(scale)), 1e-300)  # a zero value keeps a finite scale
         s = scale.astype(r.dtype, copy=False) + floor
         if fit_var is not None:
-            x = r / s
-            c = 1.4826 * _median_of_copy(np.abs(x - _median_of_copy(x)))
+            c = _robust_sd(r / s)[1]
             if c > 0:
                 s = np.sqrt(s * s + fit_var.astype(r.dtype, copy=False) / (c * c))
         models.append(("proportional", s))
     for kind, s in models:
-        x = r if s is None else r / s
-        dev = np.abs(x - _median_of_copy(x))
-        mad = 1.4826 * _median_of_copy(dev)
+        dev, mad = _robust_sd(r if s is None else r / s)
         if kind == "additive" and not (mad > 1e-7 * data_scale and mad > 0):
             return None, kind  # an exact fit: no outlier test on rounding noise
         if not mad > 0:
@@ -88,6 +85,12 @@ def _standardized(r, scale, data_scale, fit_var=None):
         if best is None or tail < best[0]:
             best = (tail, z, kind)
     return best[1], best[2]
+
+
+def _robust_sd(x):
+    """``(|x - median|, 1.4826 MAD)``: each value's deviation and the robust standard deviation."""
+    dev = np.abs(x - _median_of_copy(x))
+    return dev, 1.4826 * _median_of_copy(dev)
 
 
 def identifiability(Jt, labels, lower, upper, gram=None):

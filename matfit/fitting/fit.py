@@ -115,10 +115,9 @@ def covariance(gram, rss, dof, known_sigma, jac=None, res=None):
 
 
 @functools.lru_cache(maxsize=32)
-def _jacobian_program(par, loss, robust, scale):
-    """A jitted ``(z, arrays) -> (residuals (n,), Jacobian (n, p) in z)`` of one configuration."""
-    fn = residual_fn(par, loss, robust, scale)
-    return jax.jit(lambda z, a: (fn(z, a), jax.jacfwd(fn)(z, a)))
+def _jacobian_program(par, loss):
+    """A jitted ``(z, arrays) -> Jacobian (n, p) in z`` of the flat residuals (no robust loss)."""
+    return jax.jit(jax.jacfwd(residual_fn(par, loss, None, 1.0)))
 
 
 def refit_line(dof):
@@ -294,15 +293,15 @@ def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust
     At = np.asarray(A, float) * np.outer(inv_d, inv_d)  # J^T J in the natural parameters
     rss = float(2 * obj[best])
     dof = n_res - par.size
-    jr = None
-    if not known and robust is None and sub is None and n_rows * C <= SANDWICH_MAX:
-        # the noise's size per residual is unknown (it may grow with the value): the sandwich
-        res, jz = _jacobian_program(par, loss, robust, float(robust_scale))(jnp.asarray(zb), arrays)
-        jr = (np.asarray(jz, float) * inv_d, np.asarray(res, float))
-    cov = covariance(At, rss, dof, known, *(jr or ()))
+    jac = None
+    if not known and robust is None and sub is None and n_rows <= SANDWICH_MAX:
+        # the noise's size per residual is unknown (it may grow with the value): the sandwich,
+        # from the Jacobian at the solution and the solver's residuals there (same flat layout)
+        jac = np.asarray(_jacobian_program(par, loss)(jnp.asarray(zb), arrays), float) * inv_d
+    cov = covariance(At, rss, dof, known, *(() if jac is None else (jac, r_best.astype(float))))
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
     # each fitted value's variance from the parameters' (diagnostics: the noise scale of small values)
-    fit_var = None if jr is None else np.einsum("ij,jk,ik->i", jr[0], cov, jr[0])
+    fit_var = None if jac is None else np.einsum("ij,jk,ik->i", jac, cov, jac)
     values = np.asarray(post["values"])
     lower, upper = par.lower_upper()
     data_scale = float(_weighted_rms(arrays[2], arrays[3]))
