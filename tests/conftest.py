@@ -97,6 +97,19 @@ def pytest_unconfigure(config):
         shutil.rmtree(folder, ignore_errors=True)
 
 
+#: Memory mappings of a worker above which its compiled programs are dropped (the kernel's limit,
+#: ``vm.max_map_count``, is 65,530 here).
+MAPPINGS_CLEAR = 25_000
+
+
+def _mappings():
+    try:
+        with open("/proc/self/maps", "rb") as f:
+            return sum(1 for _ in f)
+    except OSError:
+        return MAPPINGS_CLEAR + 1  # unknown: always release
+
+
 @pytest.fixture(autouse=True, scope="module")
 def _release_compiled_programs():
     """Drop JAX's in-memory compiled programs after every test module. Each XLA CPU executable
@@ -105,7 +118,18 @@ def _release_compiled_programs():
     late in a run); past it XLA's compiler cannot map code and the worker dies of a segfault.
     A program needed again is loaded from the session's persistent cache (above)."""
     yield
-    jax.clear_caches()
+    if os.environ.get("MATFIT_CLEAR_ALWAYS") or _mappings() > MAPPINGS_CLEAR:
+        jax.clear_caches()
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _x64_stays_on(request):
+    """The session runs in float64 (``pytest_configure``); a module that switches it off would run
+    every later module of its worker in float32 unnoticed (test_conductor_guess.py once did)."""
+    yield
+    if not jax.config.read("jax_enable_x64"):
+        jax.config.update("jax_enable_x64", True)
+        pytest.fail(f"{request.module.__name__} left jax_enable_x64 off for the modules after it")
 
 
 def pytest_collection_modifyitems(config, items):

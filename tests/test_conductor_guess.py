@@ -2,7 +2,6 @@
 curve read off the table (matfit.fitting._conductor_guess), and that one start from it reaches
 the truth where the old start (eta = 1, k from the peak height) ran into the bounds."""
 
-import jax
 import numpy as np
 import pytest
 
@@ -57,13 +56,9 @@ def test_initial_guess_uses_fresnel_curve(grid):
 def test_one_start_recovers_metal_that_used_to_hit_bounds(grid):
     """Truth 51 of experiments/recovery.py's conductor draw: from eta = 1 the fit ended at
     eta -> 8, k -> 0 (chi^2/n = 129); from the Fresnel-curve start it reaches the truth."""
-    jax.config.update("jax_enable_x64", True)
-    try:
-        wo, wi = grid
-        truth = np.array([0.372, 2.056, 0.993, 2.92, 4.379, 1.747, 3.341])
-        f = np.asarray(RoughConductor(truth[0], truth[1:4], truth[4:]).eval(wo, wi))
-        r = fit(Table(wo=wo, wi=wi, values=f), model="conductor", starts=1, max_steps=200)
-        got = np.concatenate([np.atleast_1d(r.params[n]) for n in ("alpha", "eta", "k")])
-        np.testing.assert_allclose(got, truth, rtol=1e-3)
-    finally:
-        jax.config.update("jax_enable_x64", False)
+    wo, wi = grid
+    truth = np.array([0.372, 2.056, 0.993, 2.92, 4.379, 1.747, 3.341])
+    f = np.asarray(RoughConductor(truth[0], truth[1:4], truth[4:]).eval(wo, wi))
+    r = fit(Table(wo=wo, wi=wi, values=f), model="conductor", starts=1, max_steps=200)
+    got = np.concatenate([np.atleast_1d(r.params[n]) for n in ("alpha", "eta", "k")])
+    np.testing.assert_allclose(got, truth, rtol=1e-3)
