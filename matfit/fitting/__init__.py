@@ -1,6 +1,6 @@
 """Fitting model families to measurement tables: parameters, losses, solvers, uncertainty."""
 
-from .fit import (METHODS, NOISE_FLOOR, REFIT_MIN_BATCH, REFIT_SIGMAS, REFIT_STARTS, SUSPECT_FACTOR, BatchFit, FitError, FitResult,
+from .fit import (CHANNEL_RHO_REFIT, METHODS, NOISE_FLOOR, channel_correlation, REFIT_MIN_BATCH, REFIT_SIGMAS, REFIT_STARTS, SUSPECT_FACTOR, BatchFit, FitError, FitResult,
                   fit_arrays, fit_batch, guesses_from_arrays, initial_guess, initial_guesses, noise_level, refit_line, covariance, SANDWICH_MAX, LEVERAGE_MAX)
 from .losses import LOSSES, residuals
 from .methods import DEFAULT_METHOD, Method, get_method
@@ -13,7 +13,7 @@ __all__ = [
     "compose_family", "METAL_ETA_RANGE", "METAL_K_RANGE", "reduced_family", "REDUCE_TOL",
     "LOSSES", "residuals", "DEFAULT_METHOD", "Method", "get_method",
     "METHODS", "FitError", "FitResult", "fit", "fit_batch", "initial_guess", "initial_guesses",
-    "BatchFit", "fit_arrays", "guesses_from_arrays", "NOISE_FLOOR", "REFIT_MIN_BATCH", "REFIT_SIGMAS", "REFIT_STARTS", "SUSPECT_FACTOR",
+    "BatchFit", "CHANNEL_RHO_REFIT", "channel_correlation", "fit_arrays", "guesses_from_arrays", "NOISE_FLOOR", "REFIT_MIN_BATCH", "REFIT_SIGMAS", "REFIT_STARTS", "SUSPECT_FACTOR",
     "refit_line", "noise_level", "covariance", "SANDWICH_MAX", "LEVERAGE_MAX",
 ]
 from .mcmc import NOISE_MODES, LogProb, PosteriorResult, SamplingError, make_log_prob, sample_posterior

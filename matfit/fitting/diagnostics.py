@@ -19,10 +19,11 @@ at a bound             a parameter ended within :data:`BOUND_TOL` (relative to i
 outliers               residuals beyond :data:`OUTLIER_Z` robust standard deviations
                        (1.4826 MAD) on more rows than Gaussian noise explains: try
                        ``robust="huber"``/``"cauchy"`` or mask the rows. The noise is first
-                       classed as additive or proportional to the value (the model whose
-                       standardized residuals have the lighter tail beyond 3 robust standard
-                       deviations), and the residuals are standardized by it: noise of a
-                       few per cent of the value is not a set of outliers. Fitted without
+                       classed as additive, proportional to the value, or proportional over
+                       an additive floor (:data:`NOISE_FLOORS`; the model whose standardized
+                       residuals have the lighter tail beyond 3 robust standard deviations),
+                       and the residuals are standardized by it: noise of a few per cent of
+                       the value is not a set of outliers. Fitted without
                        sigma, a small value's residual also carries the fitted curve's own
                        uncertainty there (the peak's noise moves it), and the proportional
                        scale includes it.
@@ -52,31 +53,41 @@ IDENT_RCOND = 1e-10
 BOUND_TOL = 1e-4
 #: robust z-score beyond which a residual is an outlier
 OUTLIER_Z = 6.0
+#: additive floors of the proportional noise models of the outlier test, relative to the median
+#: value (0: purely proportional; :func:`_standardized`)
+NOISE_FLOORS = (0.0, 0.03, 0.1, 0.3, 1.0)
 #: reduced chi-square above which a fit with known sigma is called poor
 CHI2_MAX = 3.0
 
 
 def _standardized(r, scale, data_scale, fit_var=None):
-    r"""``(|z|, kind)``: the residuals over a robust noise scale, additive or proportional to
-    ``scale``, whichever leaves the lighter tail beyond 3 (None when the spread is rounding).
+    r"""``(|z|, kind)``: the residuals over a robust noise scale, whichever of the noise models
+    :data:`NOISE_FLOORS` leaves the lighter tail beyond 3 (None when the spread is rounding).
 
-    With ``fit_var`` (each fitted value's variance from the parameters' covariance) the
-    proportional scale is :math:`\sqrt{s_i^2 + v_i / c^2}`, ``c`` the residuals' relative
-    spread: where a fit weighted every residual alike (no sigma), the noise of the peak moves the
-    fitted curve by more than the small values' own noise, and their residuals follow it."""
+    The models are additive (one scale for every residual) and proportional to ``scale`` with an
+    additive floor :math:`\lambda m` (``m`` the median of ``scale``; :math:`\lambda` = 0 is
+    purely proportional): :math:`s_i = \sqrt{\mathrm{scale}_i^2 + \lambda^2 m^2}`, a detector's
+    dark noise under a noise that grows with the signal. With ``fit_var`` (each fitted value's
+    variance from the parameters' covariance) the scale becomes :math:`\sqrt{s_i^2 + v_i / c^2}`,
+    ``c`` the residuals' spread relative to :math:`s`: where a fit weighted every residual alike
+    (no sigma), the noise of the peak moves the fitted curve by more than the small values' own
+    noise, and their residuals follow it."""
     best = None
-    models = [("additive", None)]  # the residuals as they are: no array of ones to divide by
+    models = [("additive noise", None)]  # the residuals as they are: no array of ones to divide by
     if scale is not None:
-        floor = 1e-3 * max(float(_median_of_copy(scale)), 1e-300)  # a zero value keeps a finite scale
-        s = scale.astype(r.dtype, copy=False) + floor
-        if fit_var is not None:
-            c = _robust_sd(r / s)[1]
-            if c > 0:
-                s = np.sqrt(s * s + fit_var.astype(r.dtype, copy=False) / (c * c))
-        models.append(("proportional", s))
+        m = max(float(_median_of_copy(scale)), 1e-300)  # a zero value keeps a finite scale
+        base = scale.astype(r.dtype, copy=False)
+        for lam in NOISE_FLOORS:
+            s = np.sqrt(base * base + (max(lam, 1e-3) * m) ** 2)
+            if fit_var is not None:
+                c = _robust_sd(r / s)[1]
+                if c > 0:
+                    s = np.sqrt(s * s + fit_var.astype(r.dtype, copy=False) / (c * c))
+            kind = "proportional noise" if lam == 0 else f"proportional noise over a floor of {lam:g} x the median value"
+            models.append((kind, s))
     for kind, s in models:
         dev, mad = _robust_sd(r if s is None else r / s)
-        if kind == "additive" and not (mad > 1e-7 * data_scale and mad > 0):
+        if s is None and not (mad > 1e-7 * data_scale and mad > 0):
             return None, kind  # an exact fit: no outlier test on rounding noise
         if not mad > 0:
             continue
@@ -273,7 +284,7 @@ def diagnose(*, labels, values, stderr, lower, upper, residuals, converged, step
             # Gaussian noise gives P(|z| > 6) ~ 2e-9: a handful is already significant
             if n_out > max(2, 1e-4 * r.size):
                 out.append(f"outliers: {n_out} of {r.size} residuals are more than {OUTLIER_Z:g} robust standard "
-                           f"deviations from the fit under {kind} noise (largest {z.max():.3g}); use robust='huber' "
+                           f"deviations from the fit under {kind} (largest {z.max():.3g}); use robust='huber' "
                            "or 'cauchy', or mask them")
     if known_sigma and dof > 0:
         chi2 = float(np.sum(np.square(r, dtype=float))) / dof

@@ -41,7 +41,8 @@ from .params import Parametrization, check_solver_options, reduced_family
 
 __all__ = ["fit", "fit_batch", "fit_arrays", "FitResult", "FitError", "BatchFit", "initial_guess", "initial_guesses",
            "guesses_from_arrays", "fit_starts", "memory_estimate", "SCREEN_PER_START", "REFIT_SIGMAS", "refit_line", "SUSPECT_FACTOR",
-           "REFIT_STARTS", "REFIT_MIN_BATCH", "NOISE_FLOOR", "noise_level", "covariance", "SANDWICH_MAX", "LEVERAGE_MAX"]
+           "REFIT_STARTS", "REFIT_MIN_BATCH", "NOISE_FLOOR", "noise_level", "covariance", "SANDWICH_MAX", "LEVERAGE_MAX",
+           "CHANNEL_RHO_REFIT", "channel_correlation"]
 
 
 #: A batch's tables whose residual variance ``q`` ends more than this many of its standard
@@ -52,6 +53,10 @@ REFIT_SIGMAS = 4.0
 SUSPECT_FACTOR = 10.0
 #: Starts of a refit: the data-driven one and the best screened candidates.
 REFIT_STARTS = 8
+#: Without the table's sigma, a single fit whose residuals move together across the colour
+#: channels (mean pairwise correlation over the rows above this) is solved again from more starts
+#: (:func:`channel_correlation`): independent noise per channel leaves them uncorrelated.
+CHANNEL_RHO_REFIT = 0.8
 #: Fewest tables from which the batch's median residual variance is taken as the noise level.
 REFIT_MIN_BATCH = 16
 #: The lowest noise level, as a relative residual RMS: below it ends are rounding error.
@@ -140,6 +145,48 @@ def refit_line(dof):
     [3.0, 1.67]
     """
     return 1 + REFIT_SIGMAS * np.sqrt(2 / np.maximum(np.asarray(dof, float), 1))
+
+
+def channel_correlation(r):
+    """Mean pairwise correlation over the rows of the residuals of different colour channels.
+
+    Independent noise per channel leaves it near 0 (correct fits of 24 RGB rows without sigma in
+    ``experiments/fit_recovery.py``: above :data:`CHANNEL_RHO_REFIT` in 6 of 2,800); a fit that
+    missed the table's shape (a false minimum) leaves the same misfit in every channel. Rows
+    whose residuals are all zero (masked) are left out.
+
+    Parameters
+    ----------
+    r : array_like (N, C)
+        Residuals, one column per channel.
+
+    Returns
+    -------
+    float
+        The mean of the ``C (C - 1) / 2`` correlations; NaN for one channel, fewer than 3 rows
+        or a channel without spread.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from matfit.fitting import channel_correlation
+    >>> shape = np.sin(np.linspace(0, 3, 24))[:, None]
+    >>> round(channel_correlation(shape * [1.0, 2.0, 0.5]), 3)
+    1.0
+    >>> abs(channel_correlation(np.random.default_rng(0).standard_normal((2000, 3)))) < 0.05
+    True
+    """
+    r = np.asarray(r, float)
+    r = r[np.any(r != 0, axis=1)]
+    C = r.shape[1] if r.ndim == 2 else 1
+    if C < 2 or r.shape[0] < 3:
+        return float("nan")
+    d = r - r.mean(axis=0)
+    sd = np.sqrt(np.sum(d * d, axis=0))
+    if not np.all(sd > 0):
+        return float("nan")
+    c = (d.T @ d) / np.outer(sd, sd)
+    return float(np.mean(c[np.triu_indices(C, 1)]))
 
 
 def noise_level(q, known_sigma, scale=1.0):
@@ -264,11 +311,15 @@ def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust
     chi2 = 2 * float(np.nanmin(obj)) / max(n_res - par.size, 1)
     line = float(refit_line(n_res - par.size))
     info = []
-    if known and sub is None and not chi2 <= line:
+    rho = float("nan")
+    if not known and sub is None and C > 1:
+        rho = channel_correlation(np.asarray(r_best)[:n_rows].reshape(-1, C))
+    if sub is None and ((known and not chi2 <= line) or rho > CHANNEL_RHO_REFIT):
         # with the table's own sigma the end is judged against the noise: far above it, a false
-        # minimum is likely, and more starts (other seeds) are solved; the lower end is kept
-        # (tables small enough to be solved whole from every start: a large one's starts end on
-        # its subset)
+        # minimum is likely; without it, residuals that move together across the channels (a
+        # shape the fit missed, not independent noise) say the same. More starts (other seeds)
+        # are solved and the lower end is kept (tables small enough to be solved whole from
+        # every start: a large one's starts end on its subset)
         n2 = max(REFIT_STARTS, 2 * starts)
         again = run_full(fit_starts(table, par, n2, seed + 1, objective, rows if screen is None else screen, init), rows)
         obj2 = np.asarray(again[1])
@@ -276,9 +327,11 @@ def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust
         if kept:
             z, obj, steps, ok, best, r_best, A, sub = again
             obj = obj2
-        info.append(f"the first end's reduced chi-square {chi2:.4g} was above {line:.4g} "
-                    f"(the noise's line for the table's sigma): refitted from {n2} more starts, "
-                    + ("a lower end found" if kept else "no lower end found"))
+        why = (f"the first end's reduced chi-square {chi2:.4g} was above {line:.4g} (the noise's line for the "
+               "table's sigma)" if known else
+               f"the first end's residuals moved together across the colour channels (mean correlation {rho:.3g} "
+               f"> {CHANNEL_RHO_REFIT:g}; independent noise leaves them uncorrelated)")
+        info.append(f"{why}: refitted from {n2} more starts, " + ("a lower end found" if kept else "no lower end found"))
     good = np.isfinite(obj) & np.all(np.isfinite(np.asarray(z)), axis=1)
     if not good.any():
         raise FitError("fit: every start ended with non-finite parameters or objective")
