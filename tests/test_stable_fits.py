@@ -423,7 +423,7 @@ def test_residuals_correlated_across_channels_trigger_more_starts(monkeypatch):
     """A car paint table without sigma (additive 1 % noise, 24 pairs; table 76 of
     experiments/fit_recovery.py's draw, eta_base fixed to aluminium's) where all 4 default starts
     end in one false minimum, 49,979x the truth's objective, reported ok: its residuals move
-    together across the channels (correlation 0.95), so more starts are solved and the global
+    together across the channels (correlation 0.95), so 4 more starts are solved and the global
     minimum is kept; with the trigger off the false end comes back."""
     from pathlib import Path
 

@@ -42,7 +42,7 @@ from .params import Parametrization, check_solver_options, reduced_family
 __all__ = ["fit", "fit_batch", "fit_arrays", "FitResult", "FitError", "BatchFit", "initial_guess", "initial_guesses",
            "guesses_from_arrays", "fit_starts", "memory_estimate", "SCREEN_PER_START", "REFIT_SIGMAS", "refit_line", "SUSPECT_FACTOR",
            "REFIT_STARTS", "REFIT_MIN_BATCH", "NOISE_FLOOR", "noise_level", "covariance", "SANDWICH_MAX", "LEVERAGE_MAX",
-           "CHANNEL_RHO_REFIT", "channel_correlation"]
+           "CHANNEL_RHO_REFIT", "EXACT_FIT", "channel_correlation"]
 
 
 #: A batch's tables whose residual variance ``q`` ends more than this many of its standard
@@ -54,9 +54,12 @@ SUSPECT_FACTOR = 10.0
 #: Starts of a refit: the data-driven one and the best screened candidates.
 REFIT_STARTS = 8
 #: Without the table's sigma, a single fit whose residuals move together across the colour
-#: channels (mean pairwise correlation over the rows above this) is solved again from more starts
-#: (:func:`channel_correlation`): independent noise per channel leaves them uncorrelated.
+#: channels (mean pairwise correlation over the rows above this) is solved again from as many
+#: other starts (:func:`channel_correlation`): independent noise per channel leaves them uncorrelated.
 CHANNEL_RHO_REFIT = 0.8
+#: Residual RMS, relative to the values' RMS, at or below which a fit counts as exact (its
+#: residuals are rounding error: no channel correlation is read from them).
+EXACT_FIT = 1e-5
 #: Fewest tables from which the batch's median residual variance is taken as the noise level.
 REFIT_MIN_BATCH = 16
 #: The lowest noise level, as a relative residual RMS: below it ends are rounding error.
@@ -312,15 +315,20 @@ def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust
     line = float(refit_line(n_res - par.size))
     info = []
     rho = float("nan")
-    if not known and sub is None and C > 1:
-        rho = channel_correlation(np.asarray(r_best)[:n_rows].reshape(-1, C))
+    if not known and sub is None and C > 1 and chi2 > 0:
+        rb = np.asarray(r_best)[:n_rows]
+        # an exact fit's residuals are rounding error, whose pattern says nothing
+        if np.sqrt(np.mean(np.square(rb, dtype=float))) > EXACT_FIT * float(np.sqrt(np.mean(np.square(np.asarray(arrays[2]), dtype=float)))):
+            rho = channel_correlation(rb.reshape(-1, C))
     if sub is None and ((known and not chi2 <= line) or rho > CHANNEL_RHO_REFIT):
         # with the table's own sigma the end is judged against the noise: far above it, a false
         # minimum is likely; without it, residuals that move together across the channels (a
         # shape the fit missed, not independent noise) say the same. More starts (other seeds)
         # are solved and the lower end is kept (tables small enough to be solved whole from
         # every start: a large one's starts end on its subset)
-        n2 = max(REFIT_STARTS, 2 * starts)
+        # without sigma as many starts again (the program compiled for them): a measured table
+        # that no family describes to its noise correlates too, and pays only a second solve
+        n2 = max(REFIT_STARTS, 2 * starts) if known else starts
         again = run_full(fit_starts(table, par, n2, seed + 1, objective, rows if screen is None else screen, init), rows)
         obj2 = np.asarray(again[1])
         kept = bool(np.nanmin(obj2) < np.nanmin(obj))
