@@ -339,7 +339,7 @@ def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust
                "table's sigma)" if known else
                f"the first end's residuals moved together across the colour channels (mean correlation {rho:.3g} "
                f"> {CHANNEL_RHO_REFIT:g}; independent noise leaves them uncorrelated)")
-        info.append(f"{why}: refitted from {n2} more starts, " + ("a lower end found" if kept else "no lower end found"))
+        info.append(f"{why}: refitted from {n2} more start{'s' if n2 > 1 else ''}, " + ("a lower end found" if kept else "no lower end found"))
     good = np.isfinite(obj) & np.all(np.isfinite(np.asarray(z)), axis=1)
     if not good.any():
         raise FitError("fit: every start ended with non-finite parameters or objective")
