@@ -112,7 +112,8 @@ __all__ = ["column_groups", "jacobian", "lm_fd", "LMResult", "normal_equations",
 #: multiple of it take the blocked path (:func:`_gram`).
 GRAM_BLOCK = 512
 #: Residual count up to which a table counts as small: perturbed points evaluated one by one and
-#: moments summed elementwise (:func:`_differences`, :func:`_moments`).
+#: moments summed elementwise (:func:`_differences`, :func:`_moments`); channel-split, its column
+#: groups evaluated in a loop (:func:`_channel_moments`: the model compiled once, not once per group).
 SMALL_TABLE = 4096
 
 
@@ -252,14 +253,26 @@ def _channel_moments(fn, z, args, seeds, owner, central, r, wide=False):
     if r is None:
         r = tuple(fn(z, args))
     h = _steps(z, central)
+    G = len(seeds)
+    cast = widen if wide else (lambda x: x)
+    if r[0].shape[0] * len(r) <= SMALL_TABLE:
+        # a small table: the groups one after the other in a loop, so that the model is compiled
+        # once, not once per group (compilation is most of a small fit's time)
+        def one(seed):
+            plus = fn(z + seed * h, args)
+            base = fn(z - seed * h, args) if central else r
+            return jnp.stack([a - b for a, b in zip(plus, base)])
+
+        K = jax.lax.map(one, jnp.asarray(seeds, z.dtype))  # (G, C, n)
+        P = jnp.stack([_gram([cast(K[g, c]) for g in range(G)] + [cast(r[c])]) for c in range(len(r))])
+        E = _group_map(jnp.asarray(seeds, z.dtype), jnp.asarray(owner, z.dtype), h, central)
+        return P[:, :G, :G], P[:, :G, G], E, r
     K = []
     for seed in seeds:
         plus = fn(_shifted(z, seed, h), args)
         base = fn(_shifted(z, seed, -h), args) if central else r
         K.append(tuple(a - b for a, b in zip(plus, base)))
     K, r = jax.lax.optimization_barrier((K, tuple(r)))
-    G = len(K)
-    cast = widen if wide else (lambda x: x)
     P = jnp.stack([_gram([cast(Kg[c]) for Kg in K] + [cast(r[c])]) for c in range(len(r))])
     E = _group_map(jnp.asarray(seeds, z.dtype), jnp.asarray(owner, z.dtype), h, central)
     return P[:, :G, :G], P[:, :G, G], E, r
@@ -492,6 +505,7 @@ class _State(NamedTuple):
     D: jax.Array
     S: jax.Array
     aug: jax.Array
+    fresh: jax.Array
 
 
 def _extrapolated(fn, args, s, delta, z_new, r_new, F_new, try_it, cap):
@@ -906,18 +920,17 @@ class LevenbergMarquardtFD(eqx.Module):
         z0 = jnp.asarray(z0)
         dt = z0.dtype
         per_jac = self.jacobian.evaluations(len(seeds), dt)
-        F0, A0, g0, r0 = self.jacobian(fn, z0, args, seeds, owner, wide=wide)
+        # The start's normal equations are computed by the loop's first pass (``fresh``), in the
+        # same evaluations as every accepted step's: the model appears in the compiled program
+        # once per evaluation site, and compilation, not the solve, is most of a small fit's time.
+        F0, A0, g0, r0 = jax.eval_shape(lambda: self.jacobian(fn, z0, args, seeds, owner, wide=wide))
+        blank = lambda x: jnp.zeros(x.shape, x.dtype)  # noqa: E731  (overwritten by the first pass)
         mu0, nu0 = self.damping.init(dt)
-        S0, aug0 = jnp.zeros_like(A0), jnp.asarray(False)
         if warm is not None:
-            # a subset's S and J^T J both sum over its rows: S scales with the traces' ratio
-            ratio = jnp.trace(A0) / jnp.maximum(jnp.trace(warm.A), jnp.finfo(warm.A.dtype).tiny)
             mu0 = jnp.asarray(warm.mu, mu0.dtype)
-            S0, aug0 = (warm.S * ratio).astype(A0.dtype), jnp.asarray(warm.aug)
-        s = _State(z0, F0, A0, g0, r0, mu0, nu0, jnp.asarray(0), jnp.asarray(1 + per_jac),
-                   jnp.asarray(False), jnp.asarray(False), jnp.asarray(0),
-                   jnp.maximum(jnp.diag(A0), jnp.finfo(dt).eps * jnp.max(jnp.diag(A0)) + jnp.finfo(dt).tiny),
-                   S0, aug0)
+        s = _State(z0, jnp.asarray(jnp.inf, F0.dtype), blank(A0), blank(g0), jax.tree_util.tree_map(blank, r0), mu0, nu0,
+                   jnp.asarray(0), jnp.asarray(0), jnp.asarray(False), jnp.asarray(False), jnp.asarray(0),
+                   jnp.ones(A0.shape[0], A0.dtype), blank(A0), jnp.asarray(False), jnp.asarray(True))
 
         # One flat loop: every iteration is one trial step and the Jacobian at the (possibly
         # unchanged) point. Under vmap (batched fits) a nested loop of rejections would make every
@@ -931,31 +944,41 @@ class LevenbergMarquardtFD(eqx.Module):
             if self.secant:  # the augmented model where it is chosen and its damped matrix is definite
                 Ha = s.A + s.S
                 H = jnp.where(s.aug & (jnp.linalg.eigvalsh(Ha + s.mu * jnp.diag(s.D))[0] > 0), Ha, s.A)
-            delta = self.descent(H, s.mu, s.D, s.g).astype(dt)
+            # the first pass evaluates the start itself (no step) and takes its normal equations
+            delta = jnp.where(s.fresh, 0, self.descent(H, s.mu, s.D, s.g)).astype(dt)
             r_new = fn(s.z + delta, args)
             F_new = half_sq(r_new)
             pred = (-jnp.dot(s.g, delta) - 0.5 * jnp.dot(delta, H @ delta)).astype(dt)
             rho = (s.F - F_new) / jnp.where(pred > 0, pred, jnp.inf)
-            acc = jnp.isfinite(F_new) & (F_new < s.F) & (rho > 0) & jnp.all(jnp.isfinite(delta))
-            mu, nu = self.damping.update(s.mu, s.nu, acc, rho)
+            step_ok = ~s.fresh & jnp.isfinite(F_new) & (F_new < s.F) & (rho > 0) & jnp.all(jnp.isfinite(delta))
+            acc = step_ok | s.fresh
+            mu, nu = self.damping.update(s.mu, s.nu, step_ok, rho)
+            mu, nu = jnp.where(s.fresh, s.mu, mu), jnp.where(s.fresh, s.nu, nu)
             z_new = jnp.where(acc, s.z + delta, s.z)
             if self.extrapolate:
-                z_new, r_new, F_new = _extrapolated(fn, args, s, delta, z_new, r_new, F_new, acc & (rho > 1.25),
+                z_new, r_new, F_new = _extrapolated(fn, args, s, delta, z_new, r_new, F_new, step_ok & (rho > 1.25),
                                                     self.descent.max_step)
             # A rejected step leaves z, and so the Jacobian, unchanged (under vmap both branches run).
             F_c, A, g, r = jax.lax.cond(
                 acc, lambda: self.jacobian(fn, z_new, args, seeds, owner, r=r_new, F=F_new, wide=wide),
                 lambda: (s.F, s.A, s.g, s.r))
             rejects = jnp.where(acc, 0, s.rejects + 1)
-            stop = self.termination(s, delta, F_new, F_c, pred, rho, acc, g, rejects)
+            stop = jnp.where(s.fresh, self.termination.at_start(g),
+                             self.termination(s, delta, F_new, F_c, pred, rho, step_ok, g, rejects))
             S, aug = s.S, s.aug
             if self.secant:
-                S, aug = _secant_update(s, z_new - s.z, g, F_c, acc)
-            return _State(z_new, F_c, A, g, r, mu, nu, s.steps + acc.astype(s.steps.dtype),
-                          s.evals + 1 + acc * per_jac, stop, stop, rejects, jnp.maximum(s.D, jnp.diag(A)), S, aug)
+                S, aug = _secant_update(s, z_new - s.z, g, F_c, step_ok)
+            if warm is not None:
+                # a subset's S and J^T J both sum over its rows: S scales with the traces' ratio
+                ratio = jnp.trace(A) / jnp.maximum(jnp.trace(warm.A), jnp.finfo(warm.A.dtype).tiny)
+                S = jnp.where(s.fresh, (warm.S * ratio).astype(A.dtype), S)
+                aug = jnp.where(s.fresh, jnp.asarray(warm.aug), aug)
+            dA = jnp.diag(A)
+            D = jnp.where(s.fresh, jnp.maximum(dA, jnp.finfo(dt).eps * jnp.max(dA) + jnp.finfo(dt).tiny),
+                          jnp.maximum(s.D, dA))
+            return _State(z_new, F_c, A, g, r, mu, nu, s.steps + step_ok.astype(s.steps.dtype),
+                          s.evals + 1 + acc * per_jac, stop, stop, rejects, D, S, aug, jnp.asarray(False))
 
-        small_g0 = self.termination.at_start(g0)
-        s = s._replace(done=small_g0, ok=small_g0)
         s = jax.lax.while_loop(cond, body, s)
         return LMResult(s.z, s.F, s.steps, s.ok, s.A, s.evals, s.r, s.mu, s.S, s.aug)
 
