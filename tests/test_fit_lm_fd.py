@@ -11,7 +11,7 @@ import pytest
 
 from matfit import Table
 from matfit.fitting import fit, fit_batch, initial_guess
-from matfit.fitting.fit import by_channel, residual_fn, table_arrays
+from matfit.fitting._residuals import by_channel, residual_fn, table_arrays
 from matfit.fitting.lm import column_groups, jacobian
 from matfit.fitting.params import Parametrization
 from matfit.models import RoughConductor

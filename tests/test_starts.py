@@ -13,7 +13,8 @@ from matfit import Table
 from matfit.fitting import Parametrization, fit, fit_batch
 import matfit.fitting._starts as starts_module
 from matfit.fitting._starts import candidates, initial_guesses, ndf_widths
-from matfit.fitting.fit import SCREEN_PER_START, fit_starts, initial_guess, residual_fn
+from matfit.fitting._residuals import residual_fn
+from matfit.fitting.fit import SCREEN_PER_START, fit_starts, initial_guess
 from matfit.models import Plastic, RoughConductor
 
 

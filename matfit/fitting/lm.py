@@ -23,7 +23,9 @@ Channel-split residuals
     out as structures of arrays). Split, every evaluation is ``C`` single-output loops, the ``G``
     perturbed points are evaluated one after the other instead of under ``vmap``, and each
     channel's Gram matrix of ``[K_0 .. K_{G-1}, r]`` is a blocked reduction, which a full MERL
-    conductor iteration runs several times faster (``docs/performance.md``).
+    conductor iteration runs several times faster (``docs/performance.md``). On a small table
+    (:data:`SMALL_TABLE`) the ``G`` points are the iterations of one loop, so the model is
+    compiled once instead of ``G`` times: there compilation, not the solve, is the fit's time.
 
 Normal equations
     With the compressed differences :math:`K_c` (rows x groups) of channel ``c`` and the map
@@ -39,7 +41,8 @@ Steps (Nielsen 1999; Madsen, Nielsen & Tingleff 2004, Alg. 3.16, with Marquardt'
     when positive and updates :math:`\mu \leftarrow \mu\max(1/3, 1-(2\rho-1)^3)`, else
     :math:`\mu \leftarrow \mu\nu`, :math:`\nu \leftarrow 2\nu`. Every iteration is one trial step
     and, when it was accepted, the Jacobian at the point it reached (one flat loop, fast under
-    ``vmap``). No coordinate of ``z`` moves by more than ``max_step`` (default 3) in one step
+    ``vmap``); the first iteration evaluates the start itself, so that the model's residuals and
+    Jacobian appear once each in the compiled program. No coordinate of ``z`` moves by more than ``max_step`` (default 3) in one step
     (a coordinate that would go further is held at ``max_step`` and the others are solved again
     given it, :func:`_box_step`; the gain ratio uses the general predicted decrease
     :math:`-g^T\delta - \tfrac12\delta^TJ^TJ\delta`): a sigmoid-mapped parameter
@@ -247,7 +250,8 @@ def _channel_moments(fn, z, args, seeds, owner, central, r, wide=False):
     """Channel-split residuals (a tuple of C arrays (n,)): ``M`` (C, G, G), ``v`` (C, G), ``E``, ``r``.
 
     The G perturbed points are evaluated one after the other (no vmap: each channel stays one
-    single-output loop), their differences are materialized (an optimization barrier: otherwise
+    single-output loop; on a small table in a ``lax.map``, one copy of the model in the program,
+    else unrolled, where XLA shares what the groups' points have in common), their differences are materialized (an optimization barrier: otherwise
     XLA fuses the model into every product of the Gram matrix and recomputes it there), and each
     channel's Gram matrix of ``[K_0 .. K_{G-1}, r]`` is one blocked reduction."""
     if r is None:
