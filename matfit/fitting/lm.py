@@ -42,8 +42,8 @@ Steps (Nielsen 1999; Madsen, Nielsen & Tingleff 2004, Alg. 3.16, with Marquardt'
     :math:`\mu \leftarrow \mu\nu`, :math:`\nu \leftarrow 2\nu`. Every iteration is one trial step
     and, when it was accepted, the Jacobian at the point it reached (one flat loop, fast under
     ``vmap``); the first iteration evaluates the start itself, so that the model's residuals and
-    Jacobian appear once each in the compiled program. No coordinate of ``z`` moves by more than ``max_step`` (default 3) in one step
-    (a coordinate that would go further is held at ``max_step`` and the others are solved again
+    Jacobian appear once each in the compiled program. No coordinate of ``z`` moves by more
+    than ``max_step`` (default 3) in one step (a coordinate that would go further is held at ``max_step`` and the others are solved again
     given it, :func:`_box_step`; the gain ratio uses the general predicted decrease
     :math:`-g^T\delta - \tfrac12\delta^TJ^TJ\delta`): a sigmoid-mapped parameter
     whose Gauss-Newton step would throw it deep into saturation, where its derivative vanishes
@@ -251,8 +251,8 @@ def _channel_moments(fn, z, args, seeds, owner, central, r, wide=False):
 
     The G perturbed points are evaluated one after the other (no vmap: each channel stays one
     single-output loop; on a small table in a ``lax.map``, one copy of the model in the program,
-    else unrolled, where XLA shares what the groups' points have in common), their differences are materialized (an optimization barrier: otherwise
-    XLA fuses the model into every product of the Gram matrix and recomputes it there), and each
+    else unrolled, where XLA shares what the groups' points have in common), their differences
+    are materialized (an optimization barrier: otherwise XLA fuses the model into every product of the Gram matrix and recomputes it there), and each
     channel's Gram matrix of ``[K_0 .. K_{G-1}, r]`` is one blocked reduction."""
     if r is None:
         r = tuple(fn(z, args))
@@ -941,7 +941,8 @@ class LevenbergMarquardtFD(eqx.Module):
         # member wait for the slowest one's rejections at every step; the flat loop costs at most
         # the largest number of iterations of any member.
         def cond(s):
-            return (~s.done) & (s.steps < max_steps) & (s.evals < (4 * max_steps + 1) * (1 + per_jac))
+            # the first pass (the start's own evaluation) always runs
+            return s.fresh | ((~s.done) & (s.steps < max_steps) & (s.evals < (4 * max_steps + 1) * (1 + per_jac)))
 
         def body(s):
             H = s.A
