@@ -34,7 +34,7 @@ from ._residuals import (by_channel, objective_fn, prepared_residual_fn, split_r
 from ._starts import (SCREEN_PER_START, compiled_helpers, fit_starts, guesses_from_arrays, initial_guess,
                       initial_guesses, screened_starts)
 from .diagnostics import diagnose
-from .lm import column_groups
+from .lm import column_groups, group_map
 from .losses import check_loss, prepare_targets
 from .methods import DEFAULT_METHOD, METHODS, get_method
 from .params import Parametrization, check_solver_options, reduced_family
@@ -124,25 +124,20 @@ def covariance(gram, rss, dof, known_sigma, jac=None, res=None):
 
 @functools.lru_cache(maxsize=32)
 def _jacobian_program(par, loss):
-    """A jitted ``(z, arrays) -> Jacobian (n, p)`` of the flat residuals (no robust loss) in the
-    natural parameters: grouped differences (:func:`~matfit.fitting.lm.column_groups`, one vmapped
-    evaluation of the model) in ``theta``, a step of ``sqrt(eps) max(1, |theta|)`` towards the
-    inside of each range (central, ``eps^(1/3)``, in float32), divided by the change of ``theta``
-    it made (a secant: finite at a bound; a coordinate whose sigmoid is saturated in floating
-    point, ``d theta / d z = 0``, gets a zero column, as the chain rule gave). It compiles in
-    about half the time of ``jax.jacfwd`` (the model's JVP) and agrees with it to about 1e-7 in
-    float64 inside the ranges (1e-5-1e-4 at a bound)."""
+    """A jitted ``(z, arrays, moves) -> Jacobian (n, p)`` of the flat residuals (no robust loss) in
+    the natural parameters: grouped differences (:func:`~matfit.fitting.lm.column_groups`, one
+    vmapped evaluation of the model) in ``theta``, a step of ``sqrt(eps) max(1, |theta|)`` towards
+    the inside of each range (central, ``eps^(1/3)``, in float32), divided by the change of
+    ``theta`` it made (a secant: finite at a bound). ``moves`` (p,) bool: where ``d theta / d z``
+    is nonzero; a coordinate whose sigmoid is saturated in floating point gets a zero column, as
+    the chain rule gave. It compiles in about half the time of ``jax.jacfwd`` (the model's JVP)
+    and agrees with it to about 1e-7 in float64 inside the ranges (1e-5-1e-4 at a bound)."""
     prepare, fn = prepared_residual_fn(par, loss, None, 1.0)
     seeds, owner = column_groups(par)
     lower, upper = par.lower_upper()
-    bounded = np.isfinite(upper)  # lower + (upper - lower) sigmoid(z); else lower + exp(z)
-    width = np.where(bounded, upper - lower, 1.0)
+    bounded = np.isfinite(upper)  # sigmoid coordinates; the others are lower + exp(z)
 
-    def z_of(theta):
-        x = (theta - lower) / width
-        return jnp.where(bounded, jnp.log(x) - jnp.log1p(-jnp.where(bounded, x, 0)), jnp.log(x))
-
-    def jac(z, arrays):
+    def jac(z, arrays, moves):
         prepared = prepare(arrays)
         central = z.dtype == jnp.float32
         eps = jnp.finfo(z.dtype).eps
@@ -150,14 +145,11 @@ def _jacobian_program(par, loss):
         a = (eps ** (1 / 3) if central else jnp.sqrt(eps)) * jnp.maximum(1, jnp.abs(th))
         if central:  # theta -+ a, both inside the range
             c = jnp.clip(th, lower + 1.5 * a, jnp.where(bounded, upper - 1.5 * a, jnp.inf))
-            z_lo, z_hi = z_of(c - a), z_of(c + a)
+            z_lo, z_hi = par.z_vector(c - a), par.z_vector(c + a)
         else:  # theta, and theta + a towards the inside of the range
             inward = jnp.where(bounded & (th > (lower + upper) / 2), -1.0, 1.0)
-            z_lo, z_hi = z, z_of(th + inward * a)
-        # a coordinate whose theta does not move with z in floating point (a saturated sigmoid) has
-        # no derivative to read: its column is 0
+            z_lo, z_hi = z, par.z_vector(th + inward * a)
         z_lo, z_hi = z_lo.astype(z.dtype), z_hi.astype(z.dtype)
-        moves = jnp.diag(jax.jacfwd(par.theta_vector)(z)) != 0
         step = jnp.where(moves, par.theta_vector(z_hi) - par.theta_vector(z_lo), jnp.inf)
         base = None if central else fn(z, prepared)
 
@@ -167,7 +159,7 @@ def _jacobian_program(par, loss):
 
         sd = jnp.asarray(seeds, z.dtype)
         K = jax.vmap(diff)(sd)
-        E = sd[None, :, :] * jnp.asarray(owner, z.dtype)[:, None, :] / step
+        E = group_map(sd, jnp.asarray(owner, z.dtype), step, False)  # 1 / step: step is the whole difference
         return jnp.einsum("gnc,cgp->ncp", K, E).reshape(-1, par.size)
 
     return jax.jit(jac)
@@ -403,7 +395,7 @@ def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust
     if not known and robust is None and sub is None and n_rows <= SANDWICH_MAX:
         # the noise's size per residual is unknown (it may grow with the value): the sandwich,
         # from the Jacobian at the solution and the solver's residuals there (same flat layout)
-        jac = np.asarray(_jacobian_program(par, loss)(jnp.asarray(zb), arrays), float)
+        jac = np.asarray(_jacobian_program(par, loss)(jnp.asarray(zb), arrays, dtheta != 0), float)
     cov = covariance(At, rss, dof, known, *(() if jac is None else (jac, r_best.astype(float))))
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
     # each fitted value's variance from the parameters' (diagnostics: the noise scale of small values)

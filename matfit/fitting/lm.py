@@ -180,7 +180,7 @@ def _differences(fn, z, args, seeds, owner, central, r, stacked=True):
     D = seeds * h
     diff = (lambda d: fn(z + d, args) - fn(z - d, args)) if central else (lambda d: fn(z + d, args) - r)
     K = jax.vmap(diff)(D) if stacked else [diff(d) for d in D]
-    return K, _group_map(seeds, owner, h, central), r
+    return K, group_map(seeds, owner, h, central), r
 
 
 def _shifted(z, seed, h):
@@ -200,7 +200,7 @@ def _shifted(z, seed, h):
     return jnp.concatenate(parts)
 
 
-def _group_map(seeds, owner, h, central):
+def group_map(seeds, owner, h, central):
     """``E`` (C, G, p): column ``j`` of channel ``c`` is ``K[g] / h_j`` for the group ``g`` of ``j``."""
     return seeds[None, :, :] * owner[:, None, :] / ((2 * h) if central else h)
 
@@ -267,18 +267,16 @@ def _channel_moments(fn, z, args, seeds, owner, central, r, wide=False):
             base = fn(z - seed * h, args) if central else r
             return jnp.stack([a - b for a, b in zip(plus, base)])
 
-        K = jax.lax.map(one, jnp.asarray(seeds, z.dtype))  # (G, C, n)
-        P = jnp.stack([_gram([cast(K[g, c]) for g in range(G)] + [cast(r[c])]) for c in range(len(r))])
-        E = _group_map(jnp.asarray(seeds, z.dtype), jnp.asarray(owner, z.dtype), h, central)
-        return P[:, :G, :G], P[:, :G, G], E, r
-    K = []
-    for seed in seeds:
-        plus = fn(_shifted(z, seed, h), args)
-        base = fn(_shifted(z, seed, -h), args) if central else r
-        K.append(tuple(a - b for a, b in zip(plus, base)))
-    K, r = jax.lax.optimization_barrier((K, tuple(r)))
-    P = jnp.stack([_gram([cast(Kg[c]) for Kg in K] + [cast(r[c])]) for c in range(len(r))])
-    E = _group_map(jnp.asarray(seeds, z.dtype), jnp.asarray(owner, z.dtype), h, central)
+        K = jax.lax.map(one, jnp.asarray(seeds, z.dtype))  # (G, C, n): K[g][c] as below
+    else:
+        K = []
+        for seed in seeds:
+            plus = fn(_shifted(z, seed, h), args)
+            base = fn(_shifted(z, seed, -h), args) if central else r
+            K.append(tuple(a - b for a, b in zip(plus, base)))
+        K, r = jax.lax.optimization_barrier((K, tuple(r)))
+    P = jnp.stack([_gram([cast(K[g][c]) for g in range(G)] + [cast(r[c])]) for c in range(len(r))])
+    E = group_map(jnp.asarray(seeds, z.dtype), jnp.asarray(owner, z.dtype), h, central)
     return P[:, :G, :G], P[:, :G, G], E, r
 
 

@@ -916,6 +916,33 @@ class Parametrization:
             i += n
         return jnp.concatenate(parts, axis=-1)
 
+    def z_vector(self, theta):
+        """Unconstrained coordinates of a flat vector of natural values: the inverse of
+        :meth:`theta_vector` (each value clipped just inside its range, :meth:`Param.to_unconstrained`).
+
+        Parameters
+        ----------
+        theta : array_like (..., size)
+            Natural values, same layout as :meth:`theta_vector`'s.
+
+        Returns
+        -------
+        jax.Array (..., size)
+
+        Examples
+        --------
+        >>> from matfit.fitting import Parametrization
+        >>> par = Parametrization("plastic", 3, fixed={"eta": 1.5})
+        >>> [round(float(v), 6) for v in par.theta_vector(par.z_vector([0.5, 0.2, 0.9, 0.3]))]
+        [0.5, 0.2, 0.9, 0.3]
+        """
+        theta = jnp.asarray(theta)
+        parts, i = [], 0
+        for p, n in zip(self.free, self.sizes):
+            parts.append(p.to_unconstrained(theta[..., i:i + n]))
+            i += n
+        return jnp.concatenate(parts, axis=-1)
+
     def z_from_theta(self, theta):
         """The unconstrained vector for natural values (per-channel values broadcast; a shared
         one takes their mean).
