@@ -24,8 +24,8 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(PY) -m pytest -q -n 2 --dist loadfile tests matfit --doctest-modules
 
-# The quick tier while working (a few minutes): the tests marked `check` (tests/conftest.py
-# CHECK_TIER, one or a few per test file) and the library's doctests.
+# The quick tier while working (a few minutes): the tests marked `@pytest.mark.check` (one or a
+# few per test file) and the library's doctests.
 check: $(STAMP)
 	$(PY) -m pytest -q -n 2 --dist loadfile -m check tests matfit --doctest-modules
 

@@ -13,28 +13,9 @@ from .errors import ParameterError
 
 
 def real_dtype(where, x) -> None:
-    """Raise unless ``x`` holds real numbers (integer or floating; not bool, complex, text, objects).
-
-    Parameters
-    ----------
-    where : str
-        The start of the message (``"Lambert: parameter 'albedo'"``).
-    x : array_like
-        The value to check.
-
-    Raises
-    ------
-    ParameterError
-        ``x`` is not a rectangular array of integers or floats.
-
-    Examples
-    --------
-    >>> real_dtype("f: x", [1, 2.5])
-    >>> real_dtype("f: x", [True])
-    Traceback (most recent call last):
-    ...
-    matfit.errors.ParameterError: f: x must be real numbers (integer or floating dtype), found dtype bool
-    """
+    """Raise :class:`ParameterError` unless ``x`` is a rectangular array of real numbers (integer or
+    floating; not bool, complex, text, objects); ``where`` starts the message
+    (``"Lambert: parameter 'albedo'"``)."""
     dt = getattr(x, "dtype", None)
     if dt is None:
         try:
@@ -48,38 +29,12 @@ def real_dtype(where, x) -> None:
 
 
 def check_range(owner, name, x, lo=None, hi=None, lo_open=False, hi_open=False) -> None:
-    """Raise :class:`ParameterError` if a concrete ``x`` is not real, leaves [lo, hi] or is not finite.
+    """Raise :class:`ParameterError` if a concrete ``x`` is not real, not finite, or leaves
+    ``[lo, hi]`` (``lo_open``/``hi_open`` exclude a bound; None: unbounded).
 
-    Traced values (inside ``jit``/``grad``) are not checked: validation happens where the values
-    are known, at construction from concrete numbers.
-
-    Parameters
-    ----------
-    owner : str
-        The class or function, named first in the message.
-    name : str
-        The parameter.
-    x : array_like, jax tracer or None
-        The value (None and tracers pass).
-    lo, hi : float, optional
-        The bounds (None: unbounded on that side).
-    lo_open, hi_open : bool, default False
-        Exclude the bound itself.
-
-    Raises
-    ------
-    ParameterError
-        Naming ``owner``, ``name``, the bound and up to three offending values.
-
-    Examples
-    --------
-    >>> from matfit.errors import ParameterError
-    >>> check_range("Plastic", "eta", 1.5, lo=1.0, lo_open=True)
-    >>> try:
-    ...     check_range("Plastic", "eta", [1.5, 0.9], lo=1.0, lo_open=True)
-    ... except ParameterError as e:
-    ...     print(str(e).split(", found")[0])
-    Plastic: parameter 'eta' must be > 1.0
+    The message names ``owner``, ``name``, the bound and up to three offending values. None and
+    traced values (inside ``jit``/``grad``) pass: validation happens where the values are known,
+    at construction from concrete numbers.
     """
     if x is None or isinstance(x, jax.core.Tracer):
         return

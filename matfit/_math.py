@@ -23,76 +23,25 @@ COS_EPS = 1e-7
 
 
 def sq(x):
-    """The square ``x * x``.
-
-    Parameters
-    ----------
-    x : array_like
-        Any numeric array.
-
-    Returns
-    -------
-    array
-        ``x * x``, of the type of ``x``.
-
-    Examples
-    --------
-    >>> from matfit._math import sq
-    >>> sq(-3.0)
-    9.0
-    """
+    """The square ``x * x``."""
     return x * x
 
 
 def dot(a, b):
-    """Dot product over the last axis: ``(..., 3), (..., 3) -> (...)``.
-
-    Parameters
-    ----------
-    a, b : array_like, shape (..., 3), or Vec3
-        Vectors; they are read only through their components ``v[..., i]``.
-
-    Returns
-    -------
-    jax.Array, shape (...)
-        ``a_x b_x + a_y b_y + a_z b_z``.
-
-    Examples
-    --------
-    >>> import jax.numpy as jnp
-    >>> from matfit._math import dot
-    >>> float(dot(jnp.array([1.0, 2.0, 3.0]), jnp.array([4.0, 5.0, 6.0])))
-    32.0
-    """
+    """Dot product over the last axis, ``(..., 3), (..., 3) -> (...)``; reads only ``v[..., i]``, so a
+    :class:`Vec3` works too."""
     return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
 
 
 def safe_sqrt(x):
-    """``sqrt(max(x, 0))`` with a finite gradient at and below 0 (gradient 0 there).
-
-    Parameters
-    ----------
-    x : array_like
-        Argument of the square root.
-
-    Returns
-    -------
-    jax.Array
-        ``sqrt(x)`` where ``x > 0``, else 0.
-
-    Examples
-    --------
-    >>> import jax, jax.numpy as jnp
-    >>> from matfit._math import safe_sqrt
-    >>> [float(v) for v in safe_sqrt(jnp.array([4.0, -1.0]))], float(jax.grad(safe_sqrt)(0.0))
-    ([2.0, 0.0], 0.0)
-    """
+    """``sqrt(max(x, 0))`` with a finite gradient at and below 0 (gradient 0 there)."""
     pos = x > 0
     return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, 1)), 0)
 
 
 def per_pair(x):
-    """``x`` itself, ended by a division so that XLA computes it once per pair, in a loop of its own.
+    """``x`` itself (bit for bit, gradient 1), ended by a division so that XLA computes it once per
+    pair, in a loop of its own.
 
     A model's value is per-pair work (cosines, D, G, a scalar Fresnel) broadcast against its
     colour channels. XLA's CPU fusion copies cheap operations into the per-channel ``(..., C)``
@@ -100,76 +49,21 @@ def per_pair(x):
     cheap operation then become separate loops, each written out and read back (a smooth coat's
     two transmittances became eight loops). A quantity that ends in a division is computed whole
     in one loop, written once, and read by the per-channel loop. The divisor is 1 wherever
-    ``x == x`` (0 where ``x`` is NaN, which stays NaN), so value and gradient are those of ``x``.
-
-    Parameters
-    ----------
-    x : array_like
-        A per-pair quantity (no channel axis).
-
-    Returns
-    -------
-    jax.Array
-        Equal to ``x`` (bit for bit; gradient 1).
-
-    Examples
-    --------
-    >>> import jax, jax.numpy as jnp
-    >>> from matfit._math import per_pair
-    >>> float(per_pair(jnp.float32(0.25))), float(jax.grad(lambda t: per_pair(3 * t))(1.0))
-    (0.25, 3.0)
+    ``x == x`` (0 where ``x`` is NaN, which stays NaN).
     """
     x = jnp.asarray(x)
     return x / jnp.where(x == x, 1, 0).astype(x.dtype)
 
 
 def safe_div(num, den, fill=0.0):
-    """``num / den`` where ``den != 0``, else ``fill``; gradients stay finite.
-
-    Parameters
-    ----------
-    num, den : array_like
-        Numerator and denominator (broadcast against each other).
-    fill : array_like, optional
-        Value where ``den == 0`` (default 0).
-
-    Returns
-    -------
-    jax.Array
-        The guarded quotient.
-
-    Examples
-    --------
-    >>> import jax.numpy as jnp
-    >>> from matfit._math import safe_div
-    >>> [float(v) for v in safe_div(jnp.array([1.0, 1.0]), jnp.array([4.0, 0.0]), fill=-1.0)]
-    [0.25, -1.0]
-    """
+    """``num / den`` where ``den != 0``, else ``fill``; gradients stay finite."""
     ok = den != 0
     return jnp.where(ok, num / jnp.where(ok, den, 1), fill)
 
 
 def as_float(x):
     """``x`` as a floating JAX array: integer and boolean input becomes the default float type
-    (float64 when x64 is on, else float32); floating input keeps its dtype.
-
-    Parameters
-    ----------
-    x : array_like
-        A number or an array.
-
-    Returns
-    -------
-    jax.Array
-        A floating array of the shape of ``x``.
-
-    Examples
-    --------
-    >>> import jax.numpy as jnp
-    >>> from matfit._math import as_float
-    >>> bool(jnp.issubdtype(as_float(2).dtype, jnp.floating)), as_float(jnp.float32(0.5)).dtype.name
-    (True, 'float32')
-    """
+    (float64 when x64 is on, else float32); floating input keeps its dtype."""
     x = jnp.asarray(x)
     if not jnp.issubdtype(x.dtype, jnp.floating):
         x = x.astype(jnp.result_type(float))
@@ -178,7 +72,7 @@ def as_float(x):
 
 @jax.tree_util.register_pytree_node_class
 class Vec3:
-    """Directions as a structure of arrays: three arrays ``x, y, z`` of one shape ``(...)``.
+    """Directions as a structure of arrays: three arrays ``x, y, z`` of one (broadcastable) shape ``(...)``.
 
     A stand-in for a ``(..., 3)`` array wherever a formula reads a vector only through its
     components ``v[..., 0]``, ``v[..., 1]``, ``v[..., 2]`` (and ``+``, ``-``, :func:`dot`,
@@ -186,11 +80,6 @@ class Vec3:
     models' :meth:`~matfit.models.AbstractBSDF.eval_pairs`. XLA then keeps one array per
     component instead of an interleaved ``(..., 3)`` layout, which it fuses far better on CPUs.
     ``shape`` is that of the equivalent ``(..., 3)`` array, so shape checks work unchanged.
-
-    Parameters
-    ----------
-    x, y, z : array_like
-        The components, of one (broadcastable) shape ``(...)``.
 
     Examples
     --------
@@ -208,42 +97,12 @@ class Vec3:
 
     @classmethod
     def from_array(cls, v):
-        """Split a ``(..., 3)`` array into its components.
-
-        Parameters
-        ----------
-        v : array_like, shape (..., 3)
-            Vectors (converted to a JAX array).
-
-        Returns
-        -------
-        Vec3
-            Its components ``v[..., 0]``, ``v[..., 1]``, ``v[..., 2]``.
-
-        Examples
-        --------
-        >>> import jax.numpy as jnp
-        >>> from matfit._math import Vec3
-        >>> float(Vec3.from_array(jnp.array([0.0, 0.6, 0.8])).y)
-        0.6...
-        """
+        """Split a ``(..., 3)`` array into its components."""
         v = jnp.asarray(v)
         return cls(v[..., 0], v[..., 1], v[..., 2])
 
     def to_array(self):
-        """The equivalent ``(..., 3)`` array (a copy into the interleaved layout).
-
-        Returns
-        -------
-        jax.Array, shape (..., 3)
-            ``stack([x, y, z], axis=-1)``.
-
-        Examples
-        --------
-        >>> from matfit._math import Vec3
-        >>> Vec3(0.0, 0.0, 1.0).to_array().tolist()
-        [0.0, 0.0, 1.0]
-        """
+        """The equivalent ``(..., 3)`` array (a copy into the interleaved layout)."""
         return jnp.stack([self.x, self.y, self.z], axis=-1)
 
     @property
@@ -258,67 +117,20 @@ class Vec3:
 
     def tan_sq(self, sx=1.0, sy=1.0):
         """``(v_x s_x)^2 + (v_y s_y)^2``: the tangential part of the stretched squared length that
-        every microfacet distribution reads.
-
-        Parameters
-        ----------
-        sx, sy : array_like, optional
-            Scales along x and y (default 1: the squared sine of a unit vector).
-
-        Returns
-        -------
-        jax.Array, shape (...)
-
-        Examples
-        --------
-        >>> from matfit._math import Vec3
-        >>> round(float(Vec3(0.6, 0.0, 0.8).tan_sq(2.0, 1.0)), 6)
-        1.44
-        """
+        every microfacet distribution reads (with the default scales 1: the squared sine)."""
         return sq(self.x * sx) + sq(self.y * sy)
 
     def visible(self, m):
         r"""Smith's local visibility indicator :math:`\chi^+((v\cdot m)(v\cdot n))` of this
-        direction ``v`` for microfacets of normal ``m``.
-
-        Parameters
-        ----------
-        m : array_like, shape (..., 3), or Vec3
-            Microfacet normals.
-
-        Returns
-        -------
-        jax.Array of bool, shape (...)
-
-        Examples
-        --------
-        >>> from matfit._math import Vec3
-        >>> bool(Vec3(0.6, 0.0, 0.8).visible(Vec3(0.0, 0.0, 1.0)))
-        True
-        """
+        direction ``v`` for microfacet normals ``m``."""
         return dot(self, m) * self.z > 0
 
     def along_azimuth(self, a_x, a_y):
-        r"""``a_x cos^2 phi + a_y sin^2 phi`` at this direction's azimuth :math:`\phi`: the value
-        of a quantity that is ``a_x`` along x and ``a_y`` along y (Blinn-Phong's exponent).
+        r"""``a_x cos^2 phi + a_y sin^2 phi`` at this direction's azimuth :math:`\phi`: a quantity that
+        is ``a_x`` along x and ``a_y`` along y (Blinn-Phong's exponent).
 
-        Within machine epsilon of the normal the azimuth is irrelevant and ``a_x`` is taken (the
-        quotient's derivative ``-x^2 / (x^2 + y^2)^2`` would underflow to 0/0 there).
-
-        Parameters
-        ----------
-        a_x, a_y : array_like
-            The quantity along x and along y.
-
-        Returns
-        -------
-        jax.Array, shape (...)
-
-        Examples
-        --------
-        >>> from matfit._math import Vec3
-        >>> float(Vec3(0.0, 0.6, 0.8).along_azimuth(2.0, 5.0))
-        5.0
+        Within machine epsilon of the normal ``a_x`` is taken (the quotient's derivative
+        ``-x^2 / (x^2 + y^2)^2`` would underflow to 0/0 there).
         """
         rxy2 = sq(self.x) + sq(self.y)
         big = rxy2 > jnp.finfo(jnp.result_type(rxy2)).eps ** 2
@@ -327,24 +139,7 @@ class Vec3:
 
     def where_up(self, ok):
         """This direction where ``ok``, else the normal ``(0, 0, 1)``: the first half of the
-        double-where pattern for directions.
-
-        Parameters
-        ----------
-        ok : array_like of bool, shape (...)
-            Where to keep the direction.
-
-        Returns
-        -------
-        Vec3
-
-        Examples
-        --------
-        >>> import jax.numpy as jnp
-        >>> from matfit._math import Vec3
-        >>> Vec3(0.6, 0.0, 0.8).where_up(jnp.array(False)).to_array().tolist()
-        [0.0, 0.0, 1.0]
-        """
+        double-where pattern for directions."""
         return Vec3(jnp.where(ok, self.x, 0), jnp.where(ok, self.y, 0), jnp.where(ok, self.z, 1))
 
     def __getitem__(self, idx):
@@ -362,42 +157,12 @@ class Vec3:
         return Vec3(-self.x, -self.y, -self.z)
 
     def tree_flatten(self):
-        """Pytree children ``(x, y, z)`` and no static data.
-
-        Returns
-        -------
-        tuple
-            ``((x, y, z), None)``.
-
-        Examples
-        --------
-        >>> from matfit._math import Vec3
-        >>> Vec3(1.0, 2.0, 3.0).tree_flatten()
-        ((1.0, 2.0, 3.0), None)
-        """
+        """Pytree children ``(x, y, z)``, no static data."""
         return (self.x, self.y, self.z), None
 
     @classmethod
     def tree_unflatten(cls, aux, children):
-        """Rebuild from :meth:`tree_flatten`'s output.
-
-        Parameters
-        ----------
-        aux : None
-            Static data (none).
-        children : sequence
-            The components ``(x, y, z)``.
-
-        Returns
-        -------
-        Vec3
-
-        Examples
-        --------
-        >>> from matfit._math import Vec3
-        >>> float(Vec3.tree_unflatten(None, (1.0, 2.0, 3.0)).z)
-        3.0
-        """
+        """Rebuild from :meth:`tree_flatten`'s output."""
         return cls(*children)
 
 
@@ -445,21 +210,6 @@ class IsoDir:
         Accurate in absolute terms only (for ``z`` near 1 in float32, ``t2`` is off by ~1e-7),
         enough where ``t2`` is scaled by ``alpha^2`` and added to ``z^2`` (``Lambda``, ``G1``),
         not for the half vector of ``D``, whose ``t2`` is divided by ``alpha^2``.
-
-        Parameters
-        ----------
-        z : array_like
-            Cosines.
-
-        Returns
-        -------
-        IsoDir
-
-        Examples
-        --------
-        >>> from matfit._math import IsoDir
-        >>> round(float(IsoDir.from_cos(0.8).t2), 6)
-        0.36
         """
         return cls(z, jnp.maximum(1 - z * z, 0))
 
@@ -474,90 +224,20 @@ class IsoDir:
         return jnp.result_type(self.z, self.t2)
 
     def tan_sq(self, sx=1.0, sy=None):
-        """``t2 s_x^2``: :meth:`Vec3.tan_sq` of an isotropic scale (``sy`` is not read).
-
-        Parameters
-        ----------
-        sx : array_like, optional
-            The isotropic scale (default 1).
-        sy : array_like, optional
-            Ignored (equal to ``sx`` for the isotropic distributions that read an IsoDir).
-
-        Returns
-        -------
-        jax.Array, shape (...)
-
-        Examples
-        --------
-        >>> from matfit._math import IsoDir
-        >>> round(float(IsoDir(0.8, 0.36).tan_sq(2.0)), 6)
-        1.44
-        """
+        """``t2 s_x^2``: :meth:`Vec3.tan_sq` of an isotropic scale (``sy`` is not read)."""
         return self.t2 * sq(sx)
 
     def visible(self, m):
-        """:meth:`Vec3.visible` without an azimuth: ``v_z > 0`` (``m`` is this direction's
-        reflection half vector with another direction above the surface, so ``v . m > 0``).
-
-        Parameters
-        ----------
-        m : IsoDir
-            The half vector (not read).
-
-        Returns
-        -------
-        jax.Array of bool, shape (...)
-
-        Examples
-        --------
-        >>> from matfit._math import IsoDir
-        >>> bool(IsoDir(0.8, 0.36).visible(IsoDir(1.0, 0.0)))
-        True
-        """
+        """:meth:`Vec3.visible` without an azimuth: ``v_z > 0`` (``m``, not read, is this direction's
+        reflection half vector with another direction above the surface, so ``v . m > 0``)."""
         return self.z > 0
 
     def along_azimuth(self, a_x, a_y):
-        """:meth:`Vec3.along_azimuth` without an azimuth: ``a_x`` (an IsoDir belongs to an
-        isotropic distribution, where ``a_x == a_y``).
-
-        Parameters
-        ----------
-        a_x, a_y : array_like
-            The quantity along x and along y (``a_y`` is not read).
-
-        Returns
-        -------
-        array_like
-            ``a_x``.
-
-        Examples
-        --------
-        >>> from matfit._math import IsoDir
-        >>> IsoDir(0.8, 0.36).along_azimuth(2.0, 2.0)
-        2.0
-        """
+        """``a_x``: an IsoDir belongs to an isotropic distribution, where ``a_x == a_y``."""
         return a_x
 
     def where_up(self, ok):
-        """This direction where ``ok``, else the normal (``z = 1``, ``t2 = 0``).
-
-        Parameters
-        ----------
-        ok : array_like of bool, shape (...)
-            Where to keep the direction.
-
-        Returns
-        -------
-        IsoDir
-
-        Examples
-        --------
-        >>> import jax.numpy as jnp
-        >>> from matfit._math import IsoDir
-        >>> d = IsoDir(0.8, 0.36).where_up(jnp.array(False))
-        >>> float(d.z), float(d.t2)
-        (1.0, 0.0)
-        """
+        """This direction where ``ok``, else the normal (``z = 1``, ``t2 = 0``)."""
         return IsoDir(jnp.where(ok, self.z, 1), jnp.where(ok, self.t2, 0))
 
     def __getitem__(self, idx):
@@ -566,42 +246,12 @@ class IsoDir:
         return self.z
 
     def tree_flatten(self):
-        """Pytree children ``(z, t2)`` and no static data.
-
-        Returns
-        -------
-        tuple
-            ``((z, t2), None)``.
-
-        Examples
-        --------
-        >>> from matfit._math import IsoDir
-        >>> IsoDir(0.8, 0.36).tree_flatten()
-        ((0.8, 0.36), None)
-        """
+        """Pytree children ``(z, t2)``, no static data."""
         return (self.z, self.t2), None
 
     @classmethod
     def tree_unflatten(cls, aux, children):
-        """Rebuild from :meth:`tree_flatten`'s output.
-
-        Parameters
-        ----------
-        aux : None
-            Static data (none).
-        children : sequence
-            ``(z, t2)``.
-
-        Returns
-        -------
-        IsoDir
-
-        Examples
-        --------
-        >>> from matfit._math import IsoDir
-        >>> float(IsoDir.tree_unflatten(None, (0.8, 0.36)).z)
-        0.8
-        """
+        """Rebuild from :meth:`tree_flatten`'s output."""
         return cls(*children)
 
 
@@ -612,25 +262,6 @@ def as_direction(v):
 
     The one place that tells the direction forms apart: the distributions call the methods of
     what it returns and never test a type.
-
-    Parameters
-    ----------
-    v : array_like, shape (..., 3), Vec3 or IsoDir
-        A direction.
-
-    Returns
-    -------
-    Vec3 or IsoDir
-
-    Examples
-    --------
-    >>> import jax.numpy as jnp
-    >>> from matfit._math import IsoDir, as_direction
-    >>> type(as_direction(jnp.array([0.0, 0.6, 0.8]))).__name__
-    'Vec3'
-    >>> d = IsoDir(0.8, 0.36)
-    >>> as_direction(d) is d
-    True
     """
     if isinstance(v, (Vec3, IsoDir)):
         return v
@@ -638,28 +269,9 @@ def as_direction(v):
 
 
 def normalize(v):
-    """Unit vector along ``v``; vectors shorter than the dtype's machine epsilon (a half vector
-    of nearly opposite unit directions) map to ``(0, 0, 1)`` with finite gradients (the
-    derivative of ``v/|v|`` grows as ``1/|v|``).
-
-    Parameters
-    ----------
-    v : array_like, shape (..., 3), or Vec3
-        Vectors.
-
-    Returns
-    -------
-    jax.Array, shape (..., 3), or Vec3
-        Unit vectors, of the form of ``v``.
-
-    Examples
-    --------
-    >>> import jax.numpy as jnp, numpy as np
-    >>> from matfit._math import normalize
-    >>> u = normalize(jnp.array([[3.0, 0.0, 4.0], [0.0, 0.0, 0.0]]))  # a zero vector maps to +z
-    >>> np.asarray(u, float).round(6).tolist()
-    [[0.6, 0.0, 0.8], [0.0, 0.0, 1.0]]
-    """
+    """Unit vector along ``v`` (an array or a :class:`Vec3`, returned in its form); vectors shorter
+    than the dtype's machine epsilon (a half vector of nearly opposite unit directions) map to
+    ``(0, 0, 1)`` with finite gradients (the derivative of ``v/|v|`` grows as ``1/|v|``)."""
     n2 = dot(v, v)
     ok = n2 > jnp.finfo(jnp.result_type(n2)).eps ** 2
     inv = jnp.where(ok, jax.lax.rsqrt(jnp.where(ok, n2, 1)), 0)
@@ -672,101 +284,27 @@ def normalize(v):
 
 
 def up_like(v):
-    """The normal ``(0, 0, 1)`` in the shape and dtype of the direction array ``v``.
-
-    Parameters
-    ----------
-    v : array_like, shape (..., 3)
-        Directions.
-
-    Returns
-    -------
-    jax.Array, shape (..., 3)
-
-    Examples
-    --------
-    >>> import jax.numpy as jnp
-    >>> from matfit._math import up_like
-    >>> up_like(jnp.ones((2, 3))).tolist()
-    [[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]]
-    """
+    """The normal ``(0, 0, 1)`` in the shape and dtype of the direction array ``v``."""
     return jnp.zeros_like(v).at[..., 2].set(1)
 
 
 def mirror(w):
-    """``w`` reflected about the normal ``(0, 0, 1)``: ``(-w_x, -w_y, w_z)``, the direction of a
-    perfect mirror.
-
-    Parameters
-    ----------
-    w : array_like, shape (..., 3)
-        Directions.
-
-    Returns
-    -------
-    jax.Array, shape (..., 3)
-
-    Examples
-    --------
-    >>> import jax.numpy as jnp
-    >>> from matfit._math import mirror
-    >>> mirror(jnp.array([0.5, 0.25, 0.5])).tolist()
-    [-0.5, -0.25, 0.5]
-    """
+    """``(-w_x, -w_y, w_z)``: ``w`` reflected about the normal ``(0, 0, 1)``, a perfect mirror's direction."""
     return w * jnp.array([-1, -1, 1], w.dtype)
 
 
 def reflect(wo, m):
-    """Mirror ``wo`` about the unit normal ``m``: ``2 (wo.m) m - wo``.
-
-    Parameters
-    ----------
-    wo : array_like, shape (..., 3)
-        Directions (pointing away from the surface).
-    m : array_like, shape (..., 3)
-        Unit normals.
-
-    Returns
-    -------
-    jax.Array, shape (..., 3)
-
-    Examples
-    --------
-    >>> import jax.numpy as jnp, numpy as np
-    >>> from matfit._math import reflect
-    >>> np.asarray(reflect(jnp.array([0.6, 0.0, 0.8]), jnp.array([0.0, 0.0, 1.0])), float).round(6).tolist()
-    [-0.6, 0.0, 0.8]
-    """
+    """``2 (wo.m) m - wo``: ``wo`` mirrored about the unit normal ``m``."""
     return 2 * dot(wo, m)[..., None] * m - wo
 
 
 def refract(wi, n, eta):
-    """Refract ``wi`` (pointing away from the surface) through the normal ``n``.
+    """Refract the unit direction ``wi`` (pointing away from the surface) through the unit normal
+    ``n``; returns ``(wt, ok)``.
 
-    Parameters
-    ----------
-    wi : array_like, shape (..., 3)
-        Unit directions, pointing away from the surface.
-    n : array_like, shape (..., 3)
-        Unit normals; flipped to ``wi``'s side first.
-    eta : array_like, shape (...)
-        Relative index of the side the refracted ray enters over the side of ``wi``, after
-        flipping ``n`` to ``wi``'s side (pbrt-v4 convention).
-
-    Returns
-    -------
-    wt : jax.Array, shape (..., 3)
-        The refracted unit direction (an arbitrary unit vector where ``ok`` is false).
-    ok : jax.Array of bool, shape (...)
-        False under total internal reflection.
-
-    Examples
-    --------
-    >>> import jax.numpy as jnp
-    >>> from matfit._math import refract
-    >>> wt, ok = refract(jnp.array([0.6, 0.0, 0.8]), jnp.array([0.0, 0.0, 1.0]), jnp.array(1.5))
-    >>> round(float(wt[0]), 6), bool(ok)  # Snell: sin theta_t = 0.6 / 1.5
-    (-0.4, True)
+    ``n`` is flipped to ``wi``'s side first; ``eta`` is the index of the side the refracted ray
+    enters over that of ``wi``, after that flip (pbrt-v4 convention). ``ok`` is False under total
+    internal reflection, where ``wt`` is an arbitrary unit vector.
     """
     cos_i = dot(n, wi)
     flip = cos_i < 0
@@ -784,65 +322,25 @@ def refract(wi, n, eta):
 
 def refracted_cos2(cos_i, eta, inv):
     """``cos^2 theta_t = (eta^2 - 1 + cos_i^2) / eta^2``, Snell's law for the transmitted
-    cosine, with ``inv = 1 / eta`` given.
+    cosine, with ``inv = 1 / eta`` given; negative under total internal reflection.
 
     Written so (not ``1 - (1 - cos_i^2) / eta^2``) it keeps its digits near grazing incidence and
     at eta ~ 1 (float32: ``1 - c^2`` rounds to 1 at c = 1e-4); for a scalar index it is a product
     per direction, not a division (XLA's CPU backend repeats a direction's divisions in every loop
-    that reads it). Negative under total internal reflection.
-
-    Parameters
-    ----------
-    cos_i : array_like
-        Cosine of the incidence angle.
-    eta : array_like
-        Relative index of the side entered.
-    inv : array_like
-        ``1 / eta``.
-
-    Returns
-    -------
-    jax.Array
-
-    Examples
-    --------
-    >>> from matfit._math import refracted_cos2
-    >>> round(float(refracted_cos2(0.8, 1.5, 1 / 1.5)), 6)  # 1 - 0.36 / 2.25
-    0.84
+    that reads it).
     """
     return (eta * eta - 1 + cos_i * cos_i) * (inv * inv)
 
 
 def refract_into(w, eta):
-    """A direction above the surface refracted through the flat interface (normal ``(0, 0, 1)``)
-    into the medium below, of relative index ``eta``, and mirrored back up: the direction inside
-    a layer under a smooth coat, ``(w_x / eta, w_y / eta, cos theta_t)``.
+    """A direction above the surface (``w_z > 0``) refracted through the flat interface into the
+    medium below, of relative index ``eta`` (below over above), and mirrored back up: the direction
+    inside a layer under a smooth coat, ``(w_x / eta, w_y / eta, cos theta_t)``. Returns
+    ``(wt, ok)``, ``ok`` False under total internal reflection (``eta < 1``).
 
     :func:`refract` with the normal ``(0, 0, 1)``, written in components so that it takes a
     :class:`Vec3` as well as a ``(..., 3)`` array (and returns the same kind); ``eta`` a scalar
     or of the batch shape.
-
-    Parameters
-    ----------
-    w : Vec3 or array_like, shape (..., 3)
-        Unit directions with ``w_z > 0``.
-    eta : array_like
-        Index of the medium below over that above.
-
-    Returns
-    -------
-    wt : Vec3 or jax.Array, shape (..., 3)
-        The refracted direction, pointing up.
-    ok : jax.Array of bool, shape (...)
-        False where no direction is transmitted (total internal reflection, for ``eta < 1``).
-
-    Examples
-    --------
-    >>> import jax.numpy as jnp
-    >>> from matfit._math import refract_into
-    >>> wt, ok = refract_into(jnp.array([0.6, 0.0, 0.8]), 1.5)  # Snell: sin theta_t = 0.6 / 1.5
-    >>> [round(float(x), 6) for x in wt], bool(ok)
-    ([0.4, 0.0, 0.916515], True)
     """
     v = w if isinstance(w, Vec3) else Vec3.from_array(w)
     eta = jnp.asarray(eta)
@@ -853,50 +351,14 @@ def refract_into(w, eta):
 
 
 def flip_up(v):
-    """``v`` mirrored through the origin when it points below the surface (z < 0).
-
-    Parameters
-    ----------
-    v : array_like, shape (..., 3)
-        Vectors.
-
-    Returns
-    -------
-    jax.Array, shape (..., 3)
-
-    Examples
-    --------
-    >>> import jax.numpy as jnp
-    >>> from matfit._math import flip_up
-    >>> flip_up(jnp.array([0.5, 0.25, -0.5])).tolist()
-    [-0.5, -0.25, 0.5]
-    """
+    """``v`` mirrored through the origin where it points below the surface (``z < 0``)."""
     return jnp.where((v[..., 2] < 0)[..., None], -v, v)
 
 
 def uniform_to_disk(u1, u2):
-    """Concentric (Shirley-Chiu) map of the unit square to the unit disk.
-
-    Parameters
-    ----------
-    u1, u2 : array_like
-        Uniform numbers in [0, 1).
-
-    Returns
-    -------
-    x, y : jax.Array
-        A point of the unit disk (uniform in area for uniform ``u1``, ``u2``).
-
-    References
-    ----------
-    - P. Shirley, K. Chiu, "A Low Distortion Map Between Disk and Square", JGT 2(3), 1997.
-
-    Examples
-    --------
-    >>> from matfit._math import uniform_to_disk
-    >>> [round(float(c), 6) for c in uniform_to_disk(1.0, 0.5)]
-    [1.0, 0.0]
-    """
+    """Concentric map of the unit square (``u1, u2`` in [0, 1)) to a point ``(x, y)`` of the unit
+    disk, uniform in area for uniform input (P. Shirley, K. Chiu, "A Low Distortion Map Between
+    Disk and Square", JGT 2(3), 1997)."""
     a = 2 * u1 - 1
     b = 2 * u2 - 1
     big_a = jnp.abs(a) > jnp.abs(b)
@@ -906,24 +368,8 @@ def uniform_to_disk(u1, u2):
 
 
 def cosine_hemisphere(u1, u2):
-    """Cosine-weighted direction on the upper hemisphere (Malley's method), pdf = cos(theta)/pi.
-
-    Parameters
-    ----------
-    u1, u2 : array_like
-        Uniform numbers in [0, 1).
-
-    Returns
-    -------
-    jax.Array, shape (..., 3)
-        Unit directions with ``z >= 0``.
-
-    Examples
-    --------
-    >>> from matfit._math import cosine_hemisphere
-    >>> (cosine_hemisphere(0.5, 0.5) + 0.0).tolist()  # the disk's centre: the normal
-    [0.0, 0.0, 1.0]
-    """
+    """Cosine-weighted unit direction ``(..., 3)`` on the upper hemisphere from uniform ``u1, u2``
+    (Malley's method: a disk point lifted to ``z >= 0``); pdf = cos(theta)/pi."""
     x, y = uniform_to_disk(u1, u2)
     z = safe_sqrt(1 - x * x - y * y)
     return jnp.stack([x, y, z], axis=-1)

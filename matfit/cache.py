@@ -63,17 +63,6 @@ def cache_dir() -> Path | None:
         ``$MATFIT_CACHE_DIR`` when set, else ``$XDG_CACHE_HOME/matfit/jax`` (default
         ``~/.cache/matfit/jax``); None when ``MATFIT_NO_CACHE`` is set to anything but ``0``.
         The folder is not created.
-
-    Examples
-    --------
-    >>> import os
-    >>> from matfit.cache import cache_dir
-    >>> saved = os.environ.pop("MATFIT_NO_CACHE", None)
-    >>> os.environ["MATFIT_CACHE_DIR"] = "/tmp/matfit-doc-cache"
-    >>> str(cache_dir())
-    '/tmp/matfit-doc-cache'
-    >>> del os.environ["MATFIT_CACHE_DIR"]
-    >>> if saved is not None: os.environ["MATFIT_NO_CACHE"] = saved
     """
     if os.environ.get("MATFIT_NO_CACHE", "").strip() not in ("", "0"):
         return None
@@ -96,18 +85,8 @@ def enable_compilation_cache(path=None) -> Path | None:
     -------
     Path or None
         The folder in use, or None when ``MATFIT_NO_CACHE`` is set or the folder cannot be
-        created (the cache is an optimization: matfit works without it).
-
-    Examples
-    --------
-    >>> import os
-    >>> from matfit.cache import enable_compilation_cache
-    >>> saved = os.environ.get("MATFIT_NO_CACHE")
-    >>> os.environ["MATFIT_NO_CACHE"] = "1"
-    >>> enable_compilation_cache() is None  # turned off: JAX's settings untouched
-    True
-    >>> if saved is None: del os.environ["MATFIT_NO_CACHE"]
-    ... else: os.environ["MATFIT_NO_CACHE"] = saved
+        created (JAX's settings are then untouched: the cache is an optimization, matfit works
+        without it).
     """
     import jax
 
@@ -148,27 +127,18 @@ def _plain(key) -> bool:
 
 
 def loop_jit(fun, **kwargs):
-    """:func:`jax.jit` with :data:`LOOP_COMPILER_OPTIONS`: for programs whose loops run over a
+    """:func:`jax.jit` with :data:`LOOP_COMPILER_OPTIONS`, for programs whose loops run over a
     whole table.
 
     Parameters
     ----------
     fun : callable
-        The function to compile.
     **kwargs
         Passed on to :func:`jax.jit`.
 
     Returns
     -------
     callable
-
-    Examples
-    --------
-    >>> import jax, jax.numpy as jnp
-    >>> from matfit.cache import loop_jit
-    >>> f = loop_jit(lambda x: jax.lax.fori_loop(0, 3, lambda i, a: a + x, jnp.zeros_like(x)))
-    >>> f(jnp.arange(3.0)).tolist()
-    [0.0, 3.0, 6.0]
     """
     import jax
 

@@ -1,8 +1,7 @@
 """Exceptions raised by matfit. Every message names the argument or file and the problem.
 
 :func:`problem_message` builds the one-line message of a malformed file or document, in the form
-shared by matfit's readers and the scene files of ``data_synth``:
-``"<file>: <kind> '<name>': expected <expected>, found <found> (<detail>)"``.
+shared by matfit's readers and the scene files of ``data_synth``.
 """
 
 from __future__ import annotations
@@ -16,16 +15,13 @@ class MatfitError(ValueError):
     Parameters
     ----------
     *args : object
-        As for :class:`ValueError`: usually one message naming the argument or file and the
-        problem.
+        As for :class:`ValueError`: one message naming the argument or file and the problem.
 
     Examples
     --------
     >>> from matfit.errors import MatfitError, ParameterError
     >>> issubclass(ParameterError, MatfitError) and issubclass(MatfitError, ValueError)
     True
-    >>> str(MatfitError("fit: no valid rows"))
-    'fit: no valid rows'
     """
 
 
@@ -50,10 +46,9 @@ class ParameterError(MatfitError):
 
 
 class DataFormatError(MatfitError):
-    """A data file is malformed: the message names the file, the field, expected vs found.
-
-    The readers of :mod:`matfit.io` and :class:`matfit.table.Table` attach the parts of the
-    message to the exception as attributes (None where unknown).
+    """A data file is malformed: the message (:func:`problem_message`) names the file, the field,
+    expected vs found. The readers of :mod:`matfit.io` and :class:`matfit.table.Table` also attach
+    those parts as attributes (None where unknown).
 
     Attributes
     ----------
@@ -81,18 +76,16 @@ class DataFormatError(MatfitError):
 
 
 def problem_message(name=None, expected=None, found=None, *, file=None, detail=None, kind="field") -> str:
-    """The one-line message of a malformed file or document.
+    """The one-line message of a malformed file or document (that of :class:`DataFormatError`).
 
     Parameters
     ----------
     name : str, optional
-        The field (or key) that is wrong; left out of the message when None.
+        The field (or key) that is wrong.
     expected, found : object, optional
-        What the format requires and what was found (each left out when None).
-    file : str, optional
-        The file, prefixed with ``": "`` when given.
-    detail : str, optional
-        Appended in parentheses (a line number, a hint).
+        What the format requires and what was found.
+    file, detail : str, optional
+        The file, named first; a line number or hint, appended in parentheses.
     kind : str, default "field"
         The word naming ``name``: ``"field"`` for data files, ``"key"`` for scene files.
 
@@ -101,10 +94,6 @@ def problem_message(name=None, expected=None, found=None, *, file=None, detail=N
     str
         ``"<file>: <kind> '<name>': expected <expected>, found <found> (<detail>)"``, without the
         parts that are None.
-
-    See Also
-    --------
-    DataFormatError : the exception matfit's readers raise with this message.
 
     Examples
     --------

@@ -38,8 +38,7 @@ def soa_pairs(wo, wi, dtype=None, devices=None) -> SoAPairs:
     Parameters
     ----------
     wo, wi : array_like, shape (N, 3)
-        Outgoing and incident unit directions (local frame, normal +z). Broadcast against each
-        other.
+        Outgoing and incident unit directions (local frame, normal +z), broadcast together.
     dtype : dtype, optional
         Floating type of the components (default: that of ``wo``; float32 unless x64 is on).
     devices : sequence of jax devices, optional
@@ -50,19 +49,7 @@ def soa_pairs(wo, wi, dtype=None, devices=None) -> SoAPairs:
     -------
     SoAPairs
         The pairs, padded to a multiple of the device count (``n`` valid ones) and sharded.
-
-    Raises
-    ------
-    ParameterError
-        For directions that are not ``(N, 3)`` arrays.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit.fast import soa_pairs
-    >>> p = soa_pairs(np.array([[0.0, 0.0, 1.0]]), np.array([[0.6, 0.0, 0.8]]))
-    >>> p.n
-    1
+        Raises :class:`ParameterError` for directions that are not ``(N, 3)`` arrays.
     """
     wo = np.asarray(wo)
     wi = np.asarray(wi)
@@ -85,18 +72,10 @@ def supports_soa(model) -> bool:
     Parameters
     ----------
     model : AbstractBSDF
-        Any matfit model.
 
     Returns
     -------
     bool
-
-    Examples
-    --------
-    >>> from matfit.models import Lambert, RoughDielectric
-    >>> from matfit.fast import supports_soa
-    >>> supports_soa(Lambert(0.5)), supports_soa(RoughDielectric(0.2, 1.5))
-    (True, False)
     """
     return bool(model.pair_kernels)
 
@@ -111,27 +90,13 @@ def channel_model(model: AbstractBSDF, c: int) -> AbstractBSDF:
     Parameters
     ----------
     model : AbstractBSDF
-        Any matfit model.
     c : int
-        The channel, ``0 <= c < model.channels``.
+        The channel, ``0 <= c < model.channels`` (else :class:`ParameterError`).
 
     Returns
     -------
     AbstractBSDF
         A model of the same structure with one channel (``model`` itself when it has one).
-
-    Raises
-    ------
-    ParameterError
-        For a channel out of range.
-
-    Examples
-    --------
-    >>> import jax.numpy as jnp
-    >>> from matfit.models import Lambert
-    >>> from matfit.fast import channel_model
-    >>> channel_model(Lambert(jnp.array([0.8, 0.5, 0.2])), 1).reflectance.tolist()
-    [0.5]
     """
     C = model.channels
     if C == 1:
@@ -156,7 +121,6 @@ def eval_channel(model: AbstractBSDF, pairs: SoAPairs, c: int):
     Parameters
     ----------
     model : AbstractBSDF
-        A model with pair kernels.
     pairs : SoAPairs
         From :func:`soa_pairs` (or :meth:`SoAPairs.of <matfit.models.SoAPairs.of>`).
     c : int
@@ -166,15 +130,6 @@ def eval_channel(model: AbstractBSDF, pairs: SoAPairs, c: int):
     -------
     jax.Array, shape (n_padded,)
         The channel's values on every pair (padding included).
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit.models import Lambert
-    >>> from matfit.fast import soa_pairs, eval_channel
-    >>> up = np.array([[0.0, 0.0, 1.0]])
-    >>> round(float(eval_channel(Lambert(np.array([0.8, 0.5, 0.2])), soa_pairs(up, up), 1)[0]) * np.pi, 6)
-    0.5
     """
     return channel_model(model, c).eval_pairs(pairs)[..., 0]
 
@@ -203,8 +158,8 @@ def eval_soa(model: AbstractBSDF, pairs: SoAPairs, stack: bool = False):
     pairs : SoAPairs
         From :func:`soa_pairs`.
     stack : bool
-        False (default): return a tuple of ``C`` arrays of shape ``(N,)`` (no copy). True: one
-        ``(N, C)`` array like ``model.eval`` (costs one interleaving copy).
+        False (default): a tuple of ``C`` arrays of shape ``(N,)`` (no copy). True: one ``(N, C)``
+        array like ``model.eval`` (one interleaving copy).
 
     Returns
     -------

@@ -51,9 +51,9 @@ def use_host_devices(n: int | None = None) -> int:
     """Expose ``n`` CPU cores as separate JAX host devices (default: every core).
 
     Must run before JAX starts its backend (before the first array is created or
-    ``jax.devices()`` is called); importing jax or matfit first is fine. Equivalent to
-    ``XLA_FLAGS=--xla_force_host_platform_device_count=n`` in the environment before Python
-    starts. Has no effect on GPU backends (every GPU already is a device).
+    ``jax.devices()`` is called; importing jax or matfit first is fine); once started with the
+    same count it is a no-op. Equivalent to ``XLA_FLAGS=--xla_force_host_platform_device_count=n``
+    in the environment before Python starts. No effect on GPU backends (every GPU is a device).
 
     Parameters
     ----------
@@ -63,20 +63,8 @@ def use_host_devices(n: int | None = None) -> int:
     Returns
     -------
     int
-        The number requested.
-
-    Raises
-    ------
-    MatfitError
-        ``n < 1``, or the backend has already started with a different count.
-
-    Examples
-    --------
-    >>> from matfit.parallel import use_host_devices
-    >>> import jax
-    >>> n = len(jax.devices("cpu"))
-    >>> use_host_devices(n) == n  # no-op once started with that count
-    True
+        The number requested. Raises :class:`MatfitError` for ``n < 1``, or when the backend has
+        already started with a different count.
     """
     n = int(n if n is not None else (os.cpu_count() or 1))
     if n < 1:
@@ -105,12 +93,12 @@ def use_cores(n: int) -> int:
     """Limit this process to ``n`` of the CPU cores it may use (its CPU affinity, Linux).
 
     XLA sizes its CPU thread pool from the cores a process may use when JAX starts its backend,
-    so this must run before that (before the first array is created or ``jax.devices()`` is
-    called; importing jax or matfit first is fine); the shell's ``taskset -c 0 python ...`` does
-    the same from outside. Many small calls gain from one core: a small log-posterior call spends
-    more on handing each of its loops to a second thread than the thread gives back
-    (``benchmarks/bench_emcee.py --cores 1``, ``docs/performance.md``). Large tables lose: a full
-    MERL fit's loops run on one core instead of two.
+    so this must run before that (before the first array or ``jax.devices()``; importing jax or
+    matfit first is fine); ``taskset -c 0 python ...`` does the same from outside. Many small
+    calls gain from one core: a small log-posterior call spends more on handing each of its loops
+    to a second thread than the thread gives back (``benchmarks/bench_emcee.py --cores 1``,
+    ``docs/performance.md``). Large tables lose: a full MERL fit's loops run on one core instead
+    of two.
 
     Parameters
     ----------
@@ -120,27 +108,8 @@ def use_cores(n: int) -> int:
     Returns
     -------
     int
-        The number of cores the process may now use.
-
-    Raises
-    ------
-    MatfitError
-        ``n < 1``, JAX's backend has already started, or the platform cannot set an affinity.
-
-    Examples
-    --------
-    At the start of a script, before any JAX computation, ``use_cores(1)`` returns 1. Later
-    it refuses, as the thread pool is already sized:
-
-    >>> import jax
-    >>> from matfit.errors import MatfitError
-    >>> from matfit.parallel import use_cores
-    >>> _ = jax.devices()               # starts the backend
-    >>> try:
-    ...     use_cores(1)
-    ... except MatfitError as e:
-    ...     print(str(e).split(":")[0])
-    use_cores(1)
+        The number of cores the process may now use. Raises :class:`MatfitError` for ``n < 1``,
+        once JAX's backend has started, or where the platform cannot set an affinity.
     """
     n = int(n)
     if n < 1:
@@ -168,9 +137,7 @@ def for_small_calls(cores: int | None = 1) -> int:
     emcee's own Python ran. With dispatch off the caller runs the call itself (figures in
     ``docs/performance.md``, emcee section). Large calls (a full MERL table's fit) run on one
     core instead of all: ``cores=None`` keeps every core and only turns the dispatch off.
-
-    Must run before JAX starts its backend (before the first array is created or
-    ``jax.devices()`` is called); importing jax or matfit first is fine.
+    Like :func:`use_cores`, it must run before JAX starts its backend.
 
     Parameters
     ----------
@@ -180,28 +147,8 @@ def for_small_calls(cores: int | None = 1) -> int:
     Returns
     -------
     int
-        The number of cores the process may use.
-
-    Raises
-    ------
-    MatfitError
-        The backend has already started (or, with ``cores``, the platform cannot set an
-        affinity).
-
-    Examples
-    --------
-    At the start of a script, ``for_small_calls()`` returns 1. Once JAX has computed anything
-    it refuses:
-
-    >>> import jax
-    >>> from matfit.errors import MatfitError
-    >>> from matfit.parallel import for_small_calls
-    >>> _ = jax.devices()
-    >>> try:
-    ...     for_small_calls(None)
-    ... except MatfitError as e:
-    ...     print(str(e).split(":")[0])
-    for_small_calls
+        The number of cores the process may use. Raises :class:`MatfitError` once the backend has
+        started (or, with ``cores``, where the platform cannot set an affinity).
     """
     if _backend_started() is not False:
         raise MatfitError("for_small_calls: the JAX backend already started (or this JAX version cannot tell): its "
@@ -219,7 +166,7 @@ def _devices(devices=None):
 
 
 def device_count(devices=None) -> int:
-    """Number of devices a batch is split over (default: all devices of the default backend).
+    """Number of devices a batch is split over: the blocks :func:`shard_batch` makes.
 
     Parameters
     ----------
@@ -229,38 +176,21 @@ def device_count(devices=None) -> int:
     Returns
     -------
     int
-        The number of blocks :func:`shard_batch` splits a batch into.
-
-    Examples
-    --------
-    >>> import jax
-    >>> from matfit.parallel import device_count
-    >>> device_count() == len(jax.devices()), device_count(jax.devices()[:1])
-    (True, 1)
     """
     return len(_devices(devices))
 
 
 def batch_mesh(devices=None) -> Mesh:
-    """A one-axis mesh (:data:`BATCH_AXIS`) over ``devices`` (default: all of the default backend).
+    """A one-axis mesh (:data:`BATCH_AXIS`) over ``devices``, in order.
 
     Parameters
     ----------
     devices : sequence of jax devices, optional
-        The mesh's devices, in order (default ``jax.devices()``).
+        Default ``jax.devices()``.
 
     Returns
     -------
     jax.sharding.Mesh
-        One axis, :data:`BATCH_AXIS`, of ``len(devices)`` devices.
-
-    Examples
-    --------
-    >>> import jax
-    >>> from matfit.parallel import batch_mesh
-    >>> mesh = batch_mesh(jax.devices()[:1])
-    >>> mesh.axis_names, mesh.devices.shape
-    (('batch',), (1,))
     """
     return Mesh(np.array(_devices(devices)), (BATCH_AXIS,))
 
@@ -271,20 +201,12 @@ def batch_sharding(devices=None) -> NamedSharding:
     Parameters
     ----------
     devices : sequence of jax devices, optional
-        The devices holding the blocks, block ``k`` on ``devices[k]`` (default ``jax.devices()``).
+        Block ``k`` goes to ``devices[k]`` (default ``jax.devices()``).
 
     Returns
     -------
     jax.sharding.NamedSharding
         Over :func:`batch_mesh`, the first axis along :data:`BATCH_AXIS`.
-
-    Examples
-    --------
-    >>> import jax, jax.numpy as jnp
-    >>> from matfit.parallel import batch_sharding
-    >>> x = jax.device_put(jnp.zeros((4, 3)), batch_sharding(jax.devices()[:1]))
-    >>> tuple(x.sharding.spec), x.addressable_shards[0].data.shape
-    (('batch',), (4, 3))
     """
     return NamedSharding(batch_mesh(devices), PartitionSpec(BATCH_AXIS))
 
@@ -340,14 +262,6 @@ def shard_batch(tree, devices=None, fill=None):
     ------
     MatfitError
         No arrays, an empty batch, or leaves of different first-axis lengths.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit.parallel import device_count, shard_batch
-    >>> (x, valid), n = shard_batch((np.arange(3.0), np.ones(3, bool)), fill=(0.0, False))
-    >>> n, x.shape[0] % device_count(), x[:n].tolist(), bool(valid[:n].all() and not valid[n:].any())
-    (3, 0, [0.0, 1.0, 2.0], True)
     """
     leaves, treedef = jax.tree_util.tree_flatten(tree)
     if not leaves:

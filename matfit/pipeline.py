@@ -45,13 +45,16 @@ class PipelineResult:
 
     Examples
     --------
-    >>> import numpy as np
+    >>> import numpy as np, tempfile
     >>> from matfit import Table
     >>> from matfit.pipeline import run_pipeline
     >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
-    >>> out = run_pipeline(Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1)), "lambert", starts=1, log=None)
-    >>> out.posterior is None, out.files
-    (True, [])
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     out = run_pipeline(Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1)), "lambert", starts=1,
+    ...                        save_model=f"{d}/fit.json", log=None)
+    ...     names = [p.name for p in out.files]
+    >>> out.posterior is None, round(float(out.result.params["albedo"][0]), 4), names
+    (True, 0.3142, ['fit.json'])
     """
 
     result: object
@@ -80,53 +83,37 @@ def run_pipeline(table, model=None, *, candidates=None, method=None, loss=None, 
     Parameters
     ----------
     table : matfit.Table
-        The measurements.
+        The measurements (else :class:`~matfit.errors.ParameterError`; the steps raise their own).
     model : str, optional
         The family (a key of :data:`matfit.fitting.FAMILIES`); None chooses it by appearance
         (:func:`matfit.fitting.choose_family`, against ``truth``'s model when given, else the
-        measured file the table came from).
-    method : str, optional
-        A method of :data:`matfit.fitting.METHODS` (default: :data:`~matfit.fitting.DEFAULT_METHOD`).
+        measured file the table came from), among ``candidates`` (default: those the data call for).
     candidates : sequence of str, optional
-        With ``model=None``: the families to choose from (default: those the data call for).
-    loss : str, optional
-        As for :func:`matfit.fitting.fit` (``"l2"`` for a named family, ``"e2"`` when chosen).
-    fixed : dict, optional
-        Parameters held at given values, as for :func:`matfit.fitting.fit` (also for the
-        posterior).
-    tied : sequence of str, default ()
-        Per-channel parameters shared by all channels, as for :func:`matfit.fitting.fit`.
-    starts : int, default 4
-        Starts of each of the two fits of :func:`~matfit.fitting.robust_fit`.
-    max_steps : int, default 256
-        Solver steps per start.
+    method, loss, fixed, tied
+        As for :func:`matfit.fitting.fit` (``method`` default :data:`~matfit.fitting.DEFAULT_METHOD`;
+        ``loss`` ``"l2"`` for a named family, ``"e2"`` when chosen); ``fixed`` holds for the posterior
+        too.
+    starts, max_steps : int, default 4, 256
+        Starts of each of the two fits of :func:`~matfit.fitting.robust_fit`; solver steps per start.
     seed : int, default 0
-        Seed of the fit's starts; it also seeds the sampler and the comparison's split.
+        Seed of the fit's starts, the sampler and the comparison's split.
     posterior_steps : int, default 0
         Cap on MCMC steps of the posterior sample around the fit (0: no posterior). The noise
         model is the table's ``sigma`` when it has one and the loss is ``l2``, else fitted.
     truth : dict, optional
         The ground truth of a synthetic table (:func:`data_synth.truth_from_table`): shown beside
         the fit and in the report.
-    report : path, optional
-        Folder of the report (:func:`matfit.report.write_report`).
-    report_table : matfit.Table, optional
-        The table the report shows (default ``table``; the CLI passes the whole table when it
-        fitted a subsample).
-    title : str, optional
-        The report's title.
-    save_model : path, optional
-        Write the fitted model as a JSON model file (:func:`matfit.export.save_model`).
-    source : str, optional
-        Where the table came from, recorded in the model file.
+    report, report_table, title : optional
+        Folder of the report (:func:`matfit.report.write_report`); the table it shows (default
+        ``table``; the CLI passes the whole table when it fitted a subsample); its title.
+    save_model, source : optional
+        Write the fitted model as a JSON model file (:func:`matfit.export.save_model`), recording
+        ``source``, where the table came from.
     export : sequence of (target, path), optional
         Renderer exports (:data:`matfit.export.EXPORTERS` targets).
-    compare : sequence of str, optional
-        Families to compare on a hold-out split (:func:`matfit.fitting.compare_models`).
-    holdout : float, default 0.2
-        The comparison's hold-out fraction.
-    compare_json : path, optional
-        Write the comparison as JSON.
+    compare, holdout, compare_json : optional
+        Families to compare on a hold-out split (:func:`matfit.fitting.compare_models`), its
+        fraction (default 0.2), and a path to write the comparison as JSON.
     log : callable or None, default print
         Where the progress lines go (None: silent).
 
@@ -135,24 +122,6 @@ def run_pipeline(table, model=None, *, candidates=None, method=None, loss=None, 
     PipelineResult
         What every step produced; ``files`` lists ``report.md`` (when ``report`` is given), the
         model file, the exports and the comparison's JSON, in that order.
-
-    Raises
-    ------
-    matfit.errors.ParameterError
-        When ``table`` is not a :class:`~matfit.Table` (the steps raise their own errors).
-
-    Examples
-    --------
-    >>> import numpy as np, tempfile
-    >>> from matfit import Table
-    >>> from matfit.pipeline import run_pipeline
-    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
-    >>> with tempfile.TemporaryDirectory() as d:
-    ...     out = run_pipeline(Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1)), "lambert", starts=1,
-    ...                        save_model=f"{d}/fit.json", log=None)
-    ...     names = [p.name for p in out.files]
-    >>> round(float(out.result.params["albedo"][0]), 4), names
-    (0.3142, ['fit.json'])
     """
     from .fitting import DEFAULT_METHOD, robust_fit
 

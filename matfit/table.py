@@ -1,21 +1,8 @@
 """Measurement tables: BRDF samples with their directions, channels, uncertainty and provenance.
 
-A :class:`Table` holds ``N`` BRDF samples:
-
-* ``wo`` (N, 3): unit vectors towards the viewer / detector, local frame with normal +z;
-* ``wi`` (N, 3): unit vectors towards the light;
-* ``values`` (N, C): the BRDF in 1/sr (without the cosine), channels on the last axis;
-* ``sigma`` (N, C), optional: per-sample standard deviation (same units as ``values``), or
-* ``weight`` (N, C), optional: per-sample non-negative fitting weight (at most one of the two);
-* ``valid`` (N,): boolean mask; invalid rows are kept (so tables stay aligned with their source
-  grid) but must be ignored by fits; their values are finite but meaningless (readers write 0);
-* ``channels``: ``"mono"`` (C = 1), ``"rgb"`` (C = 3) or a tuple of wavelengths in nm (C = len);
-* ``provenance``: a JSON-serializable dict (source file, instrument or scene, ground truth where
-  synthetic, and a ``derivation`` list recording ``select`` / ``subsample`` / ``split``).
-
-All arrays are float64 (``valid`` bool), copied on construction and made read-only. Construction
-validates everything and raises :class:`~matfit.errors.DataFormatError` naming the field, the
-expected and the found shape / property. See docs/data.md for the ``.npz`` and CSV layouts.
+A :class:`Table` holds ``N`` samples (its fields and conventions are in its docstring), validated,
+copied and made read-only on construction; :class:`TableArrays` is its view as JAX arrays. See
+docs/data.md for the ``.npz`` and CSV layouts.
 """
 from __future__ import annotations
 
@@ -97,22 +84,7 @@ def _n_channels(channels) -> int:
 
 
 def channel_labels(channels) -> list[str]:
-    """Column suffixes used in CSV headers: ``mono``; ``r g b``; ``550nm`` ...
-
-    Parameters
-    ----------
-    channels : str or sequence of float
-        ``"mono"``, ``"rgb"`` or wavelengths in nm.
-
-    Returns
-    -------
-    list of str
-
-    Examples
-    --------
-    >>> channel_labels("rgb"), channel_labels((450.0, 550.5))
-    (['r', 'g', 'b'], ['450nm', '550.5nm'])
-    """
+    """Column suffixes of CSV headers for ``channels``: ``mono``; ``r g b``; ``550nm`` ..."""
     if channels == "mono":
         return ["mono"]
     if channels == "rgb":
@@ -181,30 +153,32 @@ def _readonly(a):
 
 @dataclass(frozen=True, eq=False)
 class Table:
-    """A validated, immutable table of BRDF samples (see the module docstring).
+    """A validated, immutable table of ``N`` BRDF samples.
 
-    Every field is checked and copied on construction (arrays become read-only float64, ``valid``
-    bool); a problem raises :class:`~matfit.errors.DataFormatError` naming the field.
+    Every field is checked and copied on construction: arrays become read-only float64 (``valid``
+    bool); a problem raises :class:`~matfit.errors.DataFormatError` naming the field, the expected
+    and the found shape or property.
 
     Attributes
     ----------
     wo, wi : numpy.ndarray, (N, 3)
-        Unit vectors to the viewer and to the light, local frame with normal +z.
+        Unit vectors to the viewer (detector) and to the light, local frame with normal +z.
     values : numpy.ndarray, (N, C)
-        The BRDF in 1/sr (without the cosine); ``(N,)`` is accepted for one channel.
-        Non-finite values on invalid rows are stored as 0.
+        The BRDF in 1/sr (without the cosine), channels on the last axis; ``(N,)`` is accepted
+        for one channel. Non-finite values on invalid rows are stored as 0.
     sigma : numpy.ndarray or None, (N, C)
-        Standard deviations of ``values`` (> 0 on valid rows); ``(N,)`` or ``(N, 1)`` is shared
-        by every channel.
+        Standard deviations of ``values`` (same units, > 0 on valid rows); ``(N,)`` or ``(N, 1)``
+        is shared by every channel.
     weight : numpy.ndarray or None, (N, C)
         Fitting weights >= 0, instead of ``sigma`` (at most one of the two).
     valid : numpy.ndarray, (N,) bool
-        Rows to use (default: all); invalid rows are kept but never fitted.
+        Rows to use (default: all). Invalid rows are kept, so that tables stay aligned with their
+        source grid, but never fitted; their values are finite but meaningless (readers write 0).
     channels : str or tuple of float, default "rgb"
-        ``"mono"`` (C = 1), ``"rgb"`` (C = 3) or the wavelengths in nm.
+        ``"mono"`` (C = 1), ``"rgb"`` (C = 3) or the wavelengths in nm (C = len).
     provenance : dict
-        JSON-serializable: the source, the instrument or scene, and the ``derivation`` of
-        subsets.
+        JSON-serializable: the source file, the instrument or scene, the ground truth where
+        synthetic, and a ``derivation`` list recording ``select`` / ``subsample`` / ``split``.
 
     Examples
     --------
@@ -299,21 +273,7 @@ class Table:
         return int(self.valid.sum())
 
     def effective_weight(self) -> np.ndarray:
-        """(N, C) fitting weights: ``weight``, else ``1 / sigma**2``, else 1; zero on invalid rows.
-
-        Returns
-        -------
-        numpy.ndarray, (N, C) float64
-            A new, writable array.
-
-        Examples
-        --------
-        >>> from matfit.table import Table
-        >>> t = Table(wo=[[0.0, 0.0, 1.0]] * 2, wi=[[0.0, 0.6, 0.8]] * 2, values=[0.2, 0.3], sigma=[0.1, 0.5],
-        ...           valid=[True, False], channels="mono")
-        >>> t.effective_weight().round(9).tolist()
-        [[100.0], [0.0]]
-        """
+        """(N, C) fitting weights, a new writable array: ``weight``, else ``1 / sigma**2``, else 1; zero on invalid rows."""
         if self.weight is not None:
             w = self.weight.copy()
         elif self.sigma is not None:
@@ -325,26 +285,8 @@ class Table:
         return w
 
     def as_jax(self, dtype=None) -> TableArrays:
-        """The arrays as ``jax.numpy`` arrays (``dtype`` defaults to JAX's default float).
-
-        Parameters
-        ----------
-        dtype : {None, "float32", "float64"} or numpy dtype, optional
-            The floating dtype of the arrays (``valid`` stays bool).
-
-        Returns
-        -------
-        TableArrays
-            ``wo``, ``wi``, ``values``, the :meth:`effective_weight` and ``valid``.
-
-        Examples
-        --------
-        >>> from matfit.table import Table
-        >>> t = Table(wo=[[0.0, 0.0, 1.0]], wi=[[0.0, 0.6, 0.8]], values=[[0.1, 0.2, 0.3]])
-        >>> a = t.as_jax("float32")
-        >>> a.values.dtype.name, a.weight.tolist(), a.valid.tolist()
-        ('float32', [[1.0, 1.0, 1.0]], [True])
-        """
+        """The arrays as :class:`TableArrays` of ``dtype`` (a floating dtype; default JAX's default
+        float; ``valid`` stays bool), with the :meth:`effective_weight`."""
         import jax.numpy as jnp
 
         if dtype is not None and not np.issubdtype(np.dtype(dtype), np.floating):
@@ -354,25 +296,7 @@ class Table:
                            jnp.asarray(self.valid))
 
     def replace(self, **changes) -> "Table":
-        """A new validated Table with some fields replaced.
-
-        Parameters
-        ----------
-        **changes
-            Fields of :class:`Table` and their new values.
-
-        Returns
-        -------
-        Table
-            Validated as on construction; ``self`` is unchanged.
-
-        Examples
-        --------
-        >>> from matfit.table import Table
-        >>> t = Table(wo=[[0.0, 0.0, 1.0]], wi=[[0.0, 0.6, 0.8]], values=[0.2], channels="mono")
-        >>> t.replace(values=[0.4]).values.tolist(), t.values.tolist()
-        ([[0.4]], [[0.2]])
-        """
+        """A new Table with some fields replaced, validated as on construction; ``self`` is unchanged."""
         kw = dict(wo=self.wo, wi=self.wi, values=self.values, sigma=self.sigma, weight=self.weight,
                   valid=self.valid, channels=self.channels, provenance=copy.deepcopy(self.provenance))
         kw.update(changes)
@@ -388,26 +312,8 @@ class Table:
                      valid=self.valid[idx], channels=self.channels, provenance=prov)
 
     def select(self, mask) -> "Table":
-        """Rows where the boolean ``mask`` (N,) is true, or the rows at the integer indices ``mask``.
-
-        Parameters
-        ----------
-        mask : array_like
-            A boolean ``(N,)`` mask, or 1-D integer indices in ``[-N, N)``.
-
-        Returns
-        -------
-        Table
-            Its provenance's ``derivation`` ends with ``{"op": "select", "n": ...}``.
-
-        Examples
-        --------
-        >>> from matfit.table import Table
-        >>> t = Table(wo=[[0.0, 0.0, 1.0]] * 3, wi=[[0.0, 0.6, 0.8]] * 3, values=[0.1, 0.2, 0.3], channels="mono")
-        >>> s = t.select(t.values[:, 0] > 0.15)
-        >>> s.values.ravel().tolist(), s.provenance["derivation"]
-        ([0.2, 0.3], [{'op': 'select', 'n': 2}])
-        """
+        """Rows where the boolean ``mask`` (N,) is true, or the rows at the integer indices ``mask``
+        (1-D, in ``[-N, N)``); the derivation gains ``{"op": "select", "n": ...}``."""
         m = np.asarray(mask)
         if m.dtype == bool:
             if m.shape != (len(self),):
@@ -422,31 +328,8 @@ class Table:
         return self._take(idx, {"op": "select", "n": int(len(idx))})
 
     def subsample(self, n: int, seed: int = 0, valid_only: bool = True) -> "Table":
-        """``n`` rows drawn without replacement (from the valid rows by default), in their original order.
-
-        Parameters
-        ----------
-        n : int
-            Rows to draw, at most the number available.
-        seed : int, default 0
-            Seed of the draw (:func:`numpy.random.default_rng`).
-        valid_only : bool, default True
-            Draw from the valid rows only.
-
-        Returns
-        -------
-        Table
-            Its provenance's ``derivation`` records ``n``, the seed and ``valid_only``.
-
-        Examples
-        --------
-        >>> from matfit.table import Table
-        >>> t = Table(wo=[[0.0, 0.0, 1.0]] * 4, wi=[[0.0, 0.6, 0.8]] * 4, values=[0.1, 0.2, 0.3, 0.4],
-        ...           valid=[True, True, False, True], channels="mono")
-        >>> s = t.subsample(3)
-        >>> s.values.ravel().tolist(), s.provenance["derivation"][-1]["op"]
-        ([0.1, 0.2, 0.4], 'subsample')
-        """
+        """``n`` rows drawn without replacement (from the valid rows by default), in their original
+        order; the derivation records ``n``, the ``seed`` and ``valid_only``."""
         pool = np.flatnonzero(self.valid) if valid_only else np.arange(len(self))
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0 or n > pool.size:
             raise data_error("n", f"an integer in [0, {pool.size}] ({'valid ' if valid_only else ''}rows available)", repr(n))
@@ -455,28 +338,8 @@ class Table:
         return self._take(idx, {"op": "subsample", "n": int(n), "seed": int(seed), "valid_only": bool(valid_only)})
 
     def split(self, frac: float, seed: int = 0) -> tuple["Table", "Table"]:
-        """Random split into ``(fit, holdout)``; ``fit`` gets ``round(frac * N)`` rows (both non-empty).
-
-        Parameters
-        ----------
-        frac : float
-            The fraction of rows in ``fit``, in (0, 1).
-        seed : int, default 0
-            Seed of the permutation.
-
-        Returns
-        -------
-        fit, holdout : Table
-            Disjoint, together all rows, each in the original order.
-
-        Examples
-        --------
-        >>> from matfit.table import Table
-        >>> t = Table(wo=[[0.0, 0.0, 1.0]] * 4, wi=[[0.0, 0.6, 0.8]] * 4, values=[0.1, 0.2, 0.3, 0.4], channels="mono")
-        >>> fit, holdout = t.split(0.75, seed=1)
-        >>> len(fit), len(holdout), sorted(fit.values.ravel().tolist() + holdout.values.ravel().tolist())
-        (3, 1, [0.1, 0.2, 0.3, 0.4])
-        """
+        """Random split into ``(fit, holdout)``: ``fit`` gets ``round(frac * N)`` rows, ``frac`` in
+        (0, 1); disjoint, both non-empty, each in the original order."""
         n = len(self)
         if not (isinstance(frac, (float, int)) and 0.0 < float(frac) < 1.0):
             raise data_error("frac", "a fraction in (0, 1)", repr(frac))
@@ -491,25 +354,8 @@ class Table:
 
     # ------------------------------------------------------------------ description
     def summary(self) -> str:
-        """A few lines: the size, the source, value ranges per channel, the angles covered.
-
-        Returns
-        -------
-        str
-            Lines joined by newlines, without a final one.
-
-        Examples
-        --------
-        >>> from matfit.table import Table
-        >>> t = Table(wo=[[0.0, 0.0, 1.0]], wi=[[0.0, 0.6, 0.8]], values=[0.2], channels="mono",
-        ...           provenance={"source": "example.csv"})
-        >>> print(t.summary())
-        Table: 1 samples (1 valid), channels mono
-          source: example.csv
-          value[mono]: min 0.2, median 0.2, max 0.2 1/sr
-          theta_i: 36.87..36.87 deg, theta_o: 0.00..0.00 deg
-          uncertainty: none
-        """
+        """A few lines: the size, the source, value ranges per channel, the angles covered, the
+        uncertainty and the derivation."""
         n, nv = len(self), self.n_valid
         lines = [f"Table: {n} samples ({nv} valid), channels {self.channels if isinstance(self.channels, str) else list(self.channels)}"]
         src = self.provenance.get("source") or self.provenance.get("file")
@@ -537,24 +383,8 @@ class Table:
 
     # ------------------------------------------------------------------ npz
     def save_npz(self, path) -> None:
-        """Write an uncompressed ``.npz`` (no pickled objects; provenance and channels as JSON).
-
-        Parameters
-        ----------
-        path : str or PathLike
-            The file to write (replaced if present); :meth:`load_npz` reads it back.
-
-        Examples
-        --------
-        >>> import os, tempfile
-        >>> from matfit.table import Table
-        >>> t = Table(wo=[[0.0, 0.0, 1.0]], wi=[[0.0, 0.6, 0.8]], values=[[0.1, 0.2, 0.3]], sigma=[0.01])
-        >>> with tempfile.TemporaryDirectory() as d:
-        ...     t.save_npz(os.path.join(d, "t.npz"))
-        ...     back = Table.load_npz(os.path.join(d, "t.npz"))
-        >>> back.sigma.tolist(), back.channels
-        ([[0.01, 0.01, 0.01]], 'rgb')
-        """
+        """Write an uncompressed ``.npz`` (no pickled objects; provenance and channels as JSON) that
+        :meth:`load_npz` reads back."""
         arrays = dict(format=np.array(NPZ_FORMAT), wo=self.wo, wi=self.wi, values=self.values, valid=self.valid,
                       channels=np.array(json.dumps(self.channels if isinstance(self.channels, str)
                                                    else list(self.channels))),
@@ -570,33 +400,8 @@ class Table:
     def load_npz(cls, path) -> "Table":
         """Read a Table written by :meth:`save_npz` (a path, or the archive's bytes).
 
-        Parameters
-        ----------
-        path : str, PathLike or bytes
-            The ``.npz`` file, or its bytes.
-
-        Returns
-        -------
-        Table
-            Equal to the table saved, provenance and channels included.
-
-        Raises
-        ------
-        DataFormatError
-            Not a ``.npz`` archive, missing or pickled arrays, a wrong format tag, invalid JSON,
-            or a table that does not validate; the message names the file.
-
-        Examples
-        --------
-        >>> from matfit.errors import DataFormatError
-        >>> from matfit.table import Table
-        >>> try:
-        ...     Table.load_npz(b"not a zip archive")
-        ... except DataFormatError as e:
-        ...     print(e.file, e.field, e.expected)
-        <bytes> container a .npz (zip) archive
-
-        :meth:`save_npz` shows a round trip.
+        :class:`~matfit.errors.DataFormatError`, naming the file, for anything but such an archive:
+        missing or pickled arrays, a wrong format tag, invalid JSON, a table that does not validate.
         """
         src = path
         try:
@@ -651,18 +456,7 @@ class Table:
 
     # ------------------------------------------------------------------ csv
     def csv_header(self) -> list[str]:
-        """The column names of :meth:`save_csv`: directions, values, sigma or weight, valid.
-
-        Returns
-        -------
-        list of str
-
-        Examples
-        --------
-        >>> from matfit.table import Table
-        >>> Table(wo=[[0.0, 0.0, 1.0]], wi=[[0.0, 0.6, 0.8]], values=[0.2], sigma=[0.1], channels="mono").csv_header()
-        ['wo_x', 'wo_y', 'wo_z', 'wi_x', 'wi_y', 'wi_z', 'value_mono', 'sigma_mono', 'valid']
-        """
+        """The column names of :meth:`save_csv`: directions, values, sigma or weight, valid."""
         cols = ["wo_x", "wo_y", "wo_z", "wi_x", "wi_y", "wi_z"]
         labs = self.channel_labels
         cols += [f"value_{l}" for l in labs]
@@ -674,30 +468,9 @@ class Table:
         return cols
 
     def save_csv(self, path) -> None:
-        """Write the CSV layout of docs/data.md (comment lines, header, one row per sample).
-
-        Numbers are written with ``repr``, so :meth:`load_csv` reads back the same values.
-
-        Parameters
-        ----------
-        path : str or PathLike
-            The file to write (replaced if present).
-
-        Examples
-        --------
-        >>> import os, tempfile
-        >>> from matfit.table import Table
-        >>> t = Table(wo=[[0.0, 0.0, 1.0]], wi=[[0.0, 0.6, 0.8]], values=[0.2], channels="mono")
-        >>> with tempfile.TemporaryDirectory() as d:
-        ...     t.save_csv(os.path.join(d, "t.csv"))
-        ...     with open(os.path.join(d, "t.csv")) as fh:
-        ...         print(fh.read(), end="")
-        # matfit-table v1
-        # channels: "mono"
-        # provenance: {}
-        wo_x,wo_y,wo_z,wi_x,wi_y,wi_z,value_mono,valid
-        0.0,0.0,1.0,0.0,0.6,0.8,0.2,1
-        """
+        """Write the CSV layout of docs/data.md: the magic line, ``# channels:`` and ``# provenance:``
+        comment lines (JSON), the header, one row per sample; numbers written with ``repr``, so that
+        :meth:`load_csv` reads back the same values."""
         with open(path, "w", newline="") as fh:
             fh.write(CSV_MAGIC + "\n")
             ch = self.channels if isinstance(self.channels, str) else list(self.channels)
@@ -716,32 +489,13 @@ class Table:
 
     @classmethod
     def load_csv(cls, path, channels=None) -> "Table":
-        """Read a CSV table. ``channels`` is taken from the ``# channels:`` line or inferred from the header.
+        """Read a CSV table (a path, or its contents as bytes).
 
-        Parameters
-        ----------
-        path : str, PathLike or bytes
-            The file (layout of :meth:`save_csv`, docs/data.md), or its contents.
-        channels : str or sequence of float, optional
-            Overrides the ``# channels:`` line; must match the ``value_`` columns.
-
-        Returns
-        -------
-        Table
-            Its provenance is that of the ``# provenance:`` line (empty without one).
-
-        Raises
-        ------
-        DataFormatError
-            Not UTF-8, a malformed header or row, or a table that does not validate; the
-            message names the file, the field and the line.
-
-        Examples
-        --------
-        >>> from matfit.table import Table
-        >>> t = Table.load_csv(b"wo_x,wo_y,wo_z,wi_x,wi_y,wi_z,value_r,value_g,value_b\\n0,0,1,0,0.6,0.8,0.1,0.2,0.3\\n")
-        >>> t.channels, t.values.tolist()
-        ('rgb', [[0.1, 0.2, 0.3]])
+        ``channels`` overrides the ``# channels:`` line and must match the ``value_`` columns; without
+        either it is inferred from the header. The provenance is that of the ``# provenance:`` line
+        (empty without one). :class:`~matfit.errors.DataFormatError`, naming the file, the field and
+        the line, for text that is not UTF-8, a malformed header or row, or a table that does not
+        validate.
         """
         src = path
         try:

@@ -38,6 +38,7 @@ def _flip_uniform(c1, c2):
 
 @pytest.mark.parametrize("c1, c2", [((0.2, 0.3, 0.4), (0.2, 0.3, 0.45)), ((0.5, 0.5, 0.5), (0.6, 0.5, 0.5)),
                                     ((0.1, 0.1, 0.1), (0.9, 0.2, 0.1)), ((0.0, 0.5, 0.0), (0.0, 0.0, 0.5))])
+@pytest.mark.check
 def test_flip_of_uniform_images_is_the_papers_colour_difference(c1, c2):
     f = flip_map(np.broadcast_to(c1, (48, 48, 3)), np.broadcast_to(c2, (48, 48, 3)))
     np.testing.assert_allclose(f, _flip_uniform(np.array(c1), np.array(c2)), atol=2e-4)
@@ -53,6 +54,7 @@ SHARMA = [((50.0, 2.6772, -79.7751), (50.0, 0.0, -82.7485), 2.0425),
           ((60.2574, -34.0099, 36.2677), (60.4626, -34.1751, 39.4387), 1.2644)]
 
 
+@pytest.mark.check
 def test_ciede2000_on_sharmas_test_pairs():
     import colour
 
@@ -85,6 +87,7 @@ def test_delta_e_itp_is_bt2124_of_bt2100_ictcp():
     np.testing.assert_allclose(itp_map(a, b), ref, rtol=3e-3)
 
 
+@pytest.mark.check
 def test_white_lambertian_sphere_in_the_furnace_renders_one():
     for refine, tol in ((1, 5e-3), (2, 2e-3)):
         img, inside = render_lit(Lambert(1.0), "furnace", size=24, refine=refine)

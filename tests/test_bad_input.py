@@ -278,6 +278,7 @@ def test_table_dtypes(field, bad, dtype):
         Table(**args)
 
 
+@pytest.mark.check
 def test_albedo_method():
     with pytest.raises(ValueError, match=re.escape("albedo: method must be 'quadrature' or 'mc', got 'foo'")):
         Lambert(0.5).albedo(Z, method="foo")
@@ -286,6 +287,7 @@ def test_albedo_method():
 # --------------------------------------------------------------------------------------------
 # Gaps closed after the audit: channel counts, albedo, fresnel, Table.as_jax, synthesize, reports
 # --------------------------------------------------------------------------------------------
+@pytest.mark.check
 def test_channel_counts_must_match():
     from matfit.models import Blend, Lambert, RoughConductor, SmoothConductor
 

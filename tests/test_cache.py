@@ -6,6 +6,8 @@ import subprocess
 import sys
 import textwrap
 
+import pytest
+
 SCRIPT = textwrap.dedent("""
     import json
     import numpy as np
@@ -40,6 +42,7 @@ def _run(env):
     return json.loads(line[len("RESULT "):])
 
 
+@pytest.mark.check
 def test_second_process_loads_compiled_programs(tmp_path):
     env = {k: v for k, v in os.environ.items() if k != "MATFIT_NO_CACHE"}
     env["MATFIT_CACHE_DIR"] = str(tmp_path / "cache")
@@ -100,6 +103,7 @@ def _while_body_text(hlo):
     return reach(body, set())
 
 
+@pytest.mark.check
 def test_loop_jit_keeps_table_only_work_inside_the_loop():
     """XLA hoists a loop body's loop-invariant work (here sqrt of the table) out of a while loop;
     the solvers' programs (matfit.cache.loop_jit) are compiled without that pass, so the body

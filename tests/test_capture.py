@@ -48,6 +48,7 @@ def _check_close(values, expected, rel_bright, abs_peak):
     assert np.all(err <= abs_peak * peak), np.max(err / peak)
 
 
+@pytest.mark.check
 @pytest.mark.parametrize("fmt, rel, ab", [("png16", 1e-4, 3e-5), ("exr", 2e-5, 1e-6), ("png8", 2e-2, 6e-3)])
 def test_round_trip_directions(tmp_path, fmt, rel, ab):
     maps = _maps()
@@ -65,6 +66,7 @@ def test_round_trip_directions(tmp_path, fmt, rel, ab):
     assert cap.meta["color_space"] == ("linear" if fmt == "exr" else "srgb")
 
 
+@pytest.mark.check
 def test_round_trip_positions(tmp_path):
     h, w = 12, 16
     maps = _maps(h, w)

@@ -50,6 +50,7 @@ def test_grazing_excess_names_sheen_only_where_the_backward_rows_show_it():
     assert _missing({"grazing_excess": False}) == []
 
 
+@pytest.mark.check
 def test_cues_see_what_the_material_shows():
     grey = appearance_cues(_table(Plastic(0.5, 0.1, 1.5)))
     assert not grey["coloured_highlight"] and not grey["colour_shift"] and not grey["second_lobe"]

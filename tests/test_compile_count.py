@@ -11,6 +11,7 @@ import contextlib
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from jax import monitoring
 
 import numpy_ref as R
@@ -50,6 +51,7 @@ def _conductor(alpha, eta, k):
     return RoughConductor(jnp.asarray(alpha), jnp.asarray(eta), jnp.asarray(k))
 
 
+@pytest.mark.check
 def test_counter_sees_a_compilation():
     # The counter itself must work, or the zero counts below would prove nothing.
     with count_compilations() as seen:
@@ -73,6 +75,7 @@ def test_eval_soa_compiles_once_per_structure(x64):
     assert seen == [], f"recompiled for new parameter/direction values: {seen}"
 
 
+@pytest.mark.check
 def test_jitted_eval_compiles_once(x64):
     traces = []  # one entry per trace of the function: a new trace would mean a new compilation
     f = jax.jit(lambda m, a, b: (traces.append(1), m.eval(a, b))[1])

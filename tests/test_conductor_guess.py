@@ -45,6 +45,7 @@ def test_guess_needs_rows():
     assert conductor_guess(wo, wo, np.ones((4, 3)), 0.2) is None
 
 
+@pytest.mark.check
 def test_initial_guess_uses_fresnel_curve(grid):
     wo, wi = grid
     alpha, eta, k = 0.372, np.array([2.056, 0.993, 2.92]), np.array([4.379, 1.747, 3.341])

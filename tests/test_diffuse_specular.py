@@ -109,6 +109,7 @@ def _case_id(c):
     return f"{kind}-{mk[:3]}-a{a:g}" + (f"x{ay:g}" if ay is not None else "") + f"-rgb{np.size(alb)}{np.size(f0)}"
 
 
+@pytest.mark.check
 @pytest.mark.parametrize("case", EVAL_CASES, ids=[_case_id(c) for c in EVAL_CASES])
 def test_eval_and_pdf_match_reference(case, x64, rng):
     alb, f0, a, ay, kind, mk = case
@@ -670,6 +671,7 @@ BAD = [
 ]
 
 
+@pytest.mark.check
 @pytest.mark.parametrize("kw,msg", BAD, ids=[",".join(f"{k}={v}" for k, v in kw.items()) for kw, _ in BAD])
 def test_bad_parameters_raise(kw, msg):
     with pytest.raises(ParameterError, match=msg):

@@ -60,6 +60,7 @@ EXACT_MITSUBA = {
 }
 
 
+@pytest.mark.check
 @pytest.mark.parametrize("name", sorted(EXACT_MITSUBA))
 def test_exact_mitsuba_exports_evaluate_equal_in_mitsuba(name):
     mi = _mitsuba()
@@ -313,6 +314,7 @@ def _parse_pbrt(text):
     return out
 
 
+@pytest.mark.check
 def test_pbrt_lines_parse_and_carry_alpha_without_remapping():
     m = RoughConductor(0.2, *GOLD, masking="height_correlated")
     r = to_pbrt(m)

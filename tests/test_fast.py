@@ -95,6 +95,7 @@ def _iso(v):
     return IsoDir(jnp.asarray(v[:, 2]), jnp.asarray(v[:, 0] ** 2 + v[:, 1] ** 2))
 
 
+@pytest.mark.check
 @pytest.mark.parametrize("kind", ["ggx", "beckmann", "blinn_phong"])
 def test_isotropic_distributions_read_only_cosines(kind, x64, rng):
     # An isotropic lobe of a reflection pair depends on the cosines and h's squared sine only:
@@ -142,6 +143,7 @@ def test_vec3_behaves_like_a_direction_array(x64):
         V[0]
 
 
+@pytest.mark.check
 def test_channel_model_slices_per_channel_parameters_only(x64):
     m = RoughConductor(0.3, jnp.asarray(ETA), jnp.asarray(K))
     m1 = channel_model(m, 2)

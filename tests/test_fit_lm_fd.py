@@ -54,6 +54,7 @@ def test_grouped_jacobian_matches_forward_mode(family, x64):
     np.testing.assert_allclose(np.asarray(J), np.asarray(J_ad), atol=1e-6 * scale, rtol=1e-5)
 
 
+@pytest.mark.check
 def test_lm_fd_reaches_scipy_loss(x64):
     from scipy.optimize import least_squares
 

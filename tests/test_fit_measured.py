@@ -49,6 +49,7 @@ def _conductor_table(n=3000, seed=1, invalid=0.1):
     return Table(wo=wo, wi=wi, values=y, valid=valid, channels="rgb")
 
 
+@pytest.mark.check
 def test_split_is_the_documented_disjoint_80_20_split():
     from matfit import Table
 
@@ -71,6 +72,7 @@ def test_split_is_the_documented_disjoint_80_20_split():
     assert np.array_equal(again.values, train.values)
 
 
+@pytest.mark.check
 def test_padding_fixes_the_shape_and_changes_no_fit():
     from matfit.fitting import fit
 

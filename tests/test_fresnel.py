@@ -53,6 +53,7 @@ def test_dielectric_outside_vs_colour(eta, dtype):
     np.testing.assert_allclose(np.asarray(out, float), ref, rtol=tol(dtype), atol=0)
 
 
+@pytest.mark.check
 @pytest.mark.parametrize("eta", ETAS)
 def test_dielectric_inside_vs_colour(eta, dtype):
     """cos < 0: light arrives from inside (medium eta) towards outside (index 1)."""
@@ -156,6 +157,7 @@ def test_average_known_values(x64):
     assert abs(float(fresnel_dielectric_average(1 / 1.5)) - 0.596) < 5e-4
 
 
+@pytest.mark.check
 @pytest.mark.parametrize("eta", [1.01, 1.33, 1.5, 2.4, 3.0, 0.67, 1 / 1.5, 1 / 3.0])
 def test_average_vs_quadrature(eta, x64):
     from matfit.fresnel import fresnel_dielectric_average

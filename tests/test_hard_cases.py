@@ -321,6 +321,7 @@ def test_smooth_dielectric_index_matched_passthrough(name, dtn):
     )
 
 
+@pytest.mark.check
 @pytest.mark.parametrize("name,dtn", matrix("tir", ["smooth_dielectric"]))
 def test_smooth_dielectric_total_internal_reflection(name, dtn):
     """From inside (wo_z < 0) beyond the critical angle nothing is transmitted."""
@@ -347,6 +348,7 @@ def test_rough_dielectric_tir_finite_and_reflection_zero_when_matched(name, dtn)
 # --------------------------------------------------------------------------------------------
 # Parameter errors
 # --------------------------------------------------------------------------------------------
+@pytest.mark.check
 @pytest.mark.parametrize("kw", [dict(alpha=2.0), dict(alpha=1.0001), dict(alpha=0.5, alpha_y=2.0)])
 def test_blinn_phong_alpha_above_one_raises(kw):
     a = kw.pop("alpha")
@@ -498,6 +500,7 @@ def test_property_lambert(albedo, d, u):
 @given(alpha=alpha_st, eta=cond_eta, k=cond_k, d=dirs, u=u_st)
 @example(alpha=0.0, eta=[1.0, 1.0, 1.0], k=[0.0, 0.0, 1.5393532296991593e-35], d=([0.0] * NP, [0.0] * NP, [0.0] * NP),
          u=[(0.0, 0.0, 0.0)] * NP)  # found by hypothesis: a tiny k, whose 1/k^2 overflowed a Fresnel gradient
+@pytest.mark.check
 def test_property_rough_conductor(alpha, eta, k, d, u):
     m = RoughConductor(HDT(alpha), np.asarray(eta, HDT), np.asarray(k, HDT))
     _check_prop(m, *_dirs(d), u, per_sample_energy=True)

@@ -58,6 +58,7 @@ def _within(importer, module):
     return importer == holder or importer.startswith(holder + ".")
 
 
+@pytest.mark.check
 def test_no_module_imports_another_modules_private_names():
     mods = _modules()
     bad = []
@@ -70,6 +71,7 @@ def test_no_module_imports_another_modules_private_names():
     assert not bad, "\n".join(bad)
 
 
+@pytest.mark.check
 def test_import_graph_has_no_cycles():
     mods = _modules()
     graph = {m: sorted({t for t, _, _ in found if t in mods and t != m}) for m, found in _imports(mods).items()}

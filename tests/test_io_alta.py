@@ -11,6 +11,7 @@ SHARED = Path(__file__).parents[1].parent / "shared"
 PINK = SHARED / "data" / "merl_slices" / "pink-felt-1d.alta"
 
 
+@pytest.mark.check
 def test_minimal_cos_th(tmp_path):
     p = tmp_path / "s.alta"
     p.write_text("# a comment\n#DIM 1 3\n#PARAM_IN COS_TH\n#PARAM_OUT RGB_COLOR\n"
@@ -48,6 +49,7 @@ def test_other_parametrizations(tmp_path):
     np.testing.assert_allclose(t2.wo[0], [0.6, 0, 0.8])
 
 
+@pytest.mark.check
 def test_pink_felt_slice():
     if not PINK.is_file():
         pytest.skip(f"shared ALTA slice not found: {PINK}")

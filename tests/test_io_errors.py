@@ -133,6 +133,7 @@ RGL_BYTES_CASES = {  # id: (mutation of the valid file's bytes, needles)
 }
 
 
+@pytest.mark.check
 @pytest.mark.parametrize("mutate,needles", cases(RGL_BYTES_CASES))
 def test_rgl_malformed_bytes(tmp_path, mutate, needles):
     p = rgl_bytes(tmp_path)
@@ -269,6 +270,7 @@ def _rgl_full(data):
     return b
 
 
+@pytest.mark.check
 @FUZZ
 @given(st.binary(max_size=3000))
 def test_fuzz_random_bytes_all_readers(data):

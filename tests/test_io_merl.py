@@ -23,6 +23,7 @@ def synthetic_raw(seed=0):
     return raw
 
 
+@pytest.mark.check
 def test_round_trip_bit_exact(tmp_path):
     m = MerlBRDF(synthetic_raw())
     write_merl(tmp_path / "a.binary", m)
@@ -72,6 +73,7 @@ def test_half_diff_round_trip():
     np.testing.assert_allclose(np.angle(np.exp(1j * (pd2 - pd))), 0, atol=1e-7)
 
 
+@pytest.mark.check
 def test_lookup_reciprocal_and_horizon():
     m = MerlBRDF(synthetic_raw(2))
     rng = np.random.default_rng(3)

@@ -30,6 +30,7 @@ def brdf(name) -> RglBRDF:
 
 
 # ---------------------------------------------------------------------------------- warps (no data needed)
+@pytest.mark.check
 def test_warp_sample_invert_consistent():
     rng = np.random.default_rng(0)
     p0, p1 = np.array([0.0, 0.5, 1.2]), np.array([-1.0, 2.0])
@@ -101,6 +102,7 @@ def albedo(name, deg=30.0):
     return ALB[(name, deg)]
 
 
+@pytest.mark.check
 @pytest.mark.parametrize("name", NAMES)
 def test_albedo_bounded(name):
     for deg in (0.0, 30.0, 60.0):

@@ -662,6 +662,7 @@ F32_MODELS = ["plastic-smooth-noir", "layered-smooth-lambert-abs", "coated-condu
 DTYPE_CASES = [(n, np.float64) for n in MODEL_IDS] + [(n, np.float32) for n in F32_MODELS]
 
 
+@pytest.mark.check
 @pytest.mark.parametrize("name,dt", DTYPE_CASES, ids=[f"{n}-{np.dtype(d).name}" for n, d in DTYPE_CASES])
 def test_dtypes_finite(name, dt):
     model = make(name, dt)

@@ -20,6 +20,7 @@ from matfit.fitting.params import Parametrization
 from test_fit_lm_fd import _table
 
 
+@pytest.mark.check
 @pytest.mark.parametrize("m, n", [(4, 3 * GRAM_BLOCK), (3, 1000)])  # blocked, and the plain fallback
 def test_gram_equals_numpy(m, n, x64):
     X = np.random.default_rng(0).normal(size=(m, n))
@@ -64,6 +65,7 @@ def test_small_and_large_table_normal_equations_agree(central, x64, monkeypatch)
         np.testing.assert_allclose(np.asarray(a), b, rtol=tol, atol=tol * 1e-3 * np.abs(b).max())
 
 
+@pytest.mark.check
 @pytest.mark.parametrize("family, loss", [("conductor", "e2"), ("lambert", "l2"), ("conductor_beckmann", "cosine")])
 def test_split_residuals_equal_interleaved(family, loss, x64):
     t = _table(n=700)  # pads to 1024 rows: two Gram blocks

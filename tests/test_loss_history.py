@@ -63,6 +63,7 @@ def test_report_carries_history(fitted, tmp_path):
     assert "Loss history: objective after each solver iteration" in (tmp_path / "report.md").read_text()
 
 
+@pytest.mark.check
 def test_bad_method():
     t = Table(wo=[[0, 0, 1.0]] * 3, wi=[[0, 0, 1.0]] * 3, values=[[0.1]] * 3, channels="mono")
     with pytest.raises(ParameterError, match="method"):

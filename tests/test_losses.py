@@ -32,6 +32,7 @@ def data():
     return pred, y, w, c
 
 
+@pytest.mark.check
 @pytest.mark.parametrize("loss", LOSSES)
 def test_residuals_match_reference(data, loss, x64):
     pred, y, w, c = data

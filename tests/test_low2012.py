@@ -61,6 +61,7 @@ def test_cook_fresnel_is_dielectric_fresnel(x64):
         np.testing.assert_allclose(_cook_fresnel(eta, c), np.asarray(fresnel_dielectric(c, eta)), rtol=1e-9, atol=1e-12)
 
 
+@pytest.mark.check
 def test_published_D_is_unnormalized_beckmann():
     """Integral of D cos(theta_h) over the hemisphere of normals is pi (a normalized Beckmann gives 1):
     ks D G F / (pi cos cos) then equals the microfacet BRDF of a normalized Beckmann times ks."""
@@ -87,6 +88,7 @@ def test_e2_readings():
     assert e2_cells(f, y, c, valid=np.array([True, False])) == pytest.approx(1.0)
 
 
+@pytest.mark.check
 @pytest.mark.skipif(not FITFILE.exists(), reason=f"shared data not found: {FITFILE}")
 def test_parse_published_fits():
     fits = parse_low_fits(FITFILE)

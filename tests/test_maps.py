@@ -83,6 +83,7 @@ def test_standard_errors_are_calibrated(noisy_map):
         assert 0.75 < np.std(z) < 1.35, (k, np.std(z))
 
 
+@pytest.mark.check
 def test_noise_free_map_is_exact():
     wo, wi = _directions()
     truth = ramp_maps(6, 5)
@@ -359,6 +360,7 @@ def test_capture_256_recovered(tmp_path):
         assert np.mean(np.abs(s.params[k] / truth[k] - 1) < 0.02) >= 0.99, k
 
 
+@pytest.mark.check
 def test_cli_fit_map(tmp_path, capsys):
     pygltflib = pytest.importorskip("pygltflib", reason="pygltflib (test extra) checks the glTF document")
     from data_synth.capture import render_capture

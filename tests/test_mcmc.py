@@ -79,6 +79,7 @@ def _np_log_sigmoid(z):
     return -np.logaddexp(0.0, -z)
 
 
+@pytest.mark.check
 @pytest.mark.parametrize("noise", ["table", "fit"])
 @pytest.mark.parametrize("prior", ["uniform", "gauss"])
 def test_log_prob_matches_numpy(x64, noise, prior):

@@ -205,6 +205,7 @@ def test_merl_reciprocal_and_one_sided(merl_gold):
 # ------------------------------------------------------------------------------------------------
 # RGL against the reader and against Mitsuba 3
 # ------------------------------------------------------------------------------------------------
+@pytest.mark.check
 def test_rgl_eval_matches_the_reader():
     name = "cg_sunflower"
     brdf, m = rgl(name)
@@ -438,6 +439,7 @@ def test_tables_are_constants_and_jit_compiles_once():
     np.testing.assert_allclose(np.asarray(out[3]), brdf.eval(np.broadcast_to(wo[3], (5, 3)), wi), rtol=1e-9)
 
 
+@pytest.mark.check
 def test_bad_input_raises_clear_errors(tmp_path):
     with pytest.raises(DataFormatError, match="no such file"):
         MeasuredRGL.from_file(tmp_path / "missing.bsdf")

@@ -151,6 +151,7 @@ def pairs_for(rng, n=300):
 # ------------------------------------------------------------------------------------------------
 # 1. eval and pdf vs the reference; special cases equal the single-lobe models
 # ------------------------------------------------------------------------------------------------
+@pytest.mark.check
 @pytest.mark.parametrize("case", list(LOBE_CASES))
 def test_eval_and_pdf_match_reference(case, x64, rng):
     wo, wi = pairs_for(rng)
@@ -369,6 +370,7 @@ def test_existing_families_unchanged():
     assert type(FAMILIES["conductor"].build(vals, 1)).__name__ == "RoughConductor"
 
 
+@pytest.mark.check
 def test_composed_families_layout():
     assert [p.name for p in FAMILIES["lobes3"].params] == [
         "albedo", "alpha_1", "ks_1", "f0", "ratio_2", "ks_2", "ratio_3", "ks_3"]

@@ -143,6 +143,7 @@ def _reference(m, th, td, pd):
     return col(m.kd) / np.pi + spec
 
 
+@pytest.mark.check
 @pytest.mark.parametrize("model", MODELS, ids=_ids(MODELS))
 def test_direction_form_matches_angle_form(model, rng):
     wo, wi, th, td, pd = _pairs_from_angles(rng, 3000)
@@ -234,6 +235,7 @@ def _long_rows():
         return list(csv.DictReader(fh))
 
 
+@pytest.mark.check
 @needs_fits
 def test_loader_covers_every_row(fits):
     rows = _long_rows()

@@ -228,6 +228,7 @@ def test_low_microfacet_abc_distribution_integral(fits):
         np.testing.assert_allclose(got, want, rtol=RTOL, err_msg=mat)
 
 
+@pytest.mark.check
 @needs_fits
 def test_low_smooth_retro_integral(fits):
     """Löw et al.'s smooth-surface model ``A (1 + B |Ip + Op|^2)^-C F`` (eqs. 10-14, no ``G``, no

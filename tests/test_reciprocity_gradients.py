@@ -44,6 +44,7 @@ def test_lambert_reciprocity(x64, rng):
 RECIPROCITY_LOBES = C.lobe_params(alphas=((0.4, None), (0.4, 0.15)))
 
 
+@pytest.mark.check
 @pytest.mark.parametrize("lobe", RECIPROCITY_LOBES)
 def test_rough_conductor_reciprocity(lobe, x64, rng):
     wo, wi = C.random_pairs(rng, N, 0.01)

@@ -120,6 +120,7 @@ def test_G1(lobe, dtype, rng):
     check(out, rounded_lobe(lobe, dtype).ref().G1(v, m), dtype, f"{lobe.dist}.G1", v=v, m=m)
 
 
+@pytest.mark.check
 @pytest.mark.parametrize("lobe", MODEL_LOBES)
 def test_G2(lobe, dtype, rng):
     wo = directions(rng)

@@ -155,6 +155,7 @@ def test_report_history_and_no_truth(cmp_glossy, glossy, tmp_path):
 
 
 # ---------------------------------------------------------------------------------- CLI
+@pytest.mark.check
 def test_cli_fit_npz_with_report(glossy, cmp_glossy, tmp_path, capsys):
     path = tmp_path / "gold.npz"
     save(path, glossy)

@@ -557,6 +557,7 @@ def test_smooth_conductor(inside):
     assert np.allclose(p, 1.0)
 
 
+@pytest.mark.check
 @pytest.mark.parametrize("eta", ETAS)
 @pytest.mark.parametrize("inside", [False, True], ids=["outside", "inside"])
 def test_smooth_dielectric(eta, inside):

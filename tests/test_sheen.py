@@ -86,6 +86,7 @@ def test_sheen_albedo_matches_quadrature(x64, rng):
     assert ref.max() < 1 and ref[2] > ref[0]  # a sheen reflects more at grazing light
 
 
+@pytest.mark.check
 def test_eval_matches_reference(x64, rng):
     wo, wi = C.random_pairs(rng, 300, 0.02, "both")
     r = 0.35
@@ -177,6 +178,7 @@ def test_float32_finite_at_special_pairs():
     (("lambert", 0.5, 0.3), "base must be a matfit model"),
     ((Lambert([0.5, 0.4]), [0.5, 0.4, 0.3], 0.3), "channels"),
 ])
+@pytest.mark.check
 def test_bad_parameters_raise(args, match):
     with pytest.raises(ParameterError, match=match):
         Sheen(*args)

@@ -187,6 +187,7 @@ def test_nan_on_masked_rows_is_ignored():
     assert np.allclose(r.params["albedo"], ALB, rtol=0.02) and r.ok, r.summary()
 
 
+@pytest.mark.check
 def test_masked_rows_do_not_influence_the_fit():
     """Garbage on masked rows gives exactly the fit of the table without those rows' influence."""
     t = _lambert_table()
@@ -266,6 +267,7 @@ def test_no_valid_rows_raises():
         fit(t, model="lambert")
 
 
+@pytest.mark.check
 def test_black_table_flags_bound():
     wo, wi = _dirs()
     t = Table(wo=wo, wi=wi, values=np.zeros((len(wo), 3)))

@@ -108,6 +108,7 @@ def test_percentile10_matches_numpy():
     np.testing.assert_allclose(got, ref, rtol=1e-14)
 
 
+@pytest.mark.check
 @pytest.mark.parametrize("family", ["conductor", "plastic", "car_paint"])
 def test_initial_guesses_batch_equals_one_by_one(table, family):
     from matfit.fitting.fit import initial_guesses

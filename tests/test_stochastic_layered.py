@@ -46,6 +46,7 @@ def test_white_base_lossless_coat_keeps_energy():
     np.testing.assert_allclose(e, 1.0, atol=1e-9)
 
 
+@pytest.mark.check
 def test_eval_matches_exact_analytic_smooth_coat():
     """For a smooth coat over a Lambertian base, Plastic (internal reflection) is exact."""
     wo = _dirs()

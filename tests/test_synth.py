@@ -197,6 +197,7 @@ def test_ground_truth_in_provenance_and_values_exact():
     assert t.sigma is None and t.channels == "rgb"
 
 
+@pytest.mark.check
 def test_shipped_scenes_parse():
     names = {p.stem for p in shipped_scenes()}
     assert {"demo", "gold_ggx_inplane", "red_plastic_hemi", "frosted_glass_transmission",
@@ -259,6 +260,7 @@ def test_toml_syntax_error_names_file(tmp_path):
 
 
 # ------------------------------------------------------------------ CLI
+@pytest.mark.check
 def test_cli_synth_info_roundtrip(tmp_path, capsys):
     from matfit.cli import main
     from matfit.io import load

@@ -142,6 +142,7 @@ def test_csv_minimal_hand_written(tmp_path):
     assert t.channels == "mono" and len(t) == 2 and t.valid.all() and t.provenance == {}
 
 
+@pytest.mark.check
 def test_as_jax():
     import jax.numpy as jnp
 

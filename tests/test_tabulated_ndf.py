@@ -83,6 +83,7 @@ def model_of(ndf, dtype=np.float64, masking="separable", eta=ETA, k=K):
 # ------------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("kind, alpha, d_tol, g_tol", [("ggx", 0.05, 1e-3, 1e-4), ("ggx", 0.3, 1e-4, 1e-5),
                                                        ("ggx", 1.0, 1e-6, 1e-6), ("beckmann", 0.3, 5e-3, 1e-4)])
+@pytest.mark.check
 def test_tabulated_ggx_matches_reference(kind, alpha, d_tol, g_tol, x64, rng):
     ref = R.Dist(kind, alpha)
     tab = ref_table(kind, alpha)
@@ -391,6 +392,7 @@ def test_extraction_narrow_and_wide(x64):
         assert s["alpha"] == pytest.approx(alpha, rel=rel) and s["lobes"] == 1
 
 
+@pytest.mark.check
 def test_extraction_power_iteration_and_two_lobes(x64):
     """Dupuy et al.'s own relation (G2(k, k) = G1(k)) on exact retro-reflection written from the
     formulas, for one GGX lobe and for a mixture of two, whose G1 follows from the linearity of the

@@ -57,6 +57,7 @@ def film_args(rng):
     return tuple(np.concatenate([a, b]) for a, b in zip(_random(rng), _hard()))
 
 
+@pytest.mark.check
 def test_spectrum_matches_the_characteristic_matrix(x64, film_args):
     a = np.asarray(thin_film_spectrum(*film_args, LAM))
     b = R.thin_film_spectrum(*film_args, LAM)
@@ -195,6 +196,7 @@ def test_fit_recovers_a_film(x64, rng):
     ({"thickness": [300.0, 310.0, 320.0], "film_eta": 1.5}, "one value for every channel"),
     ({"thickness": 300.0, "film_eta": 1.5, "k": 1.0}, "does not apply"),
 ])
+@pytest.mark.check
 def test_bad_parameters_raise(kwargs, match):
     with pytest.raises(ParameterError, match=match):
         SpecularLobe(0.2, "thin_film", **kwargs)

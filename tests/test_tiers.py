@@ -1,17 +1,14 @@
-"""The `make check` tier covers every test file, and every test it names exists."""
+"""The `make check` tier (tests marked ``@pytest.mark.check``) covers every test file."""
 
 import re
 from pathlib import Path
 
-from conftest import CHECK_TIER
-
 HERE = Path(__file__).resolve().parent
 
 
-def test_check_tier_names_every_test_file_and_only_existing_tests():
-    files = sorted(p.name for p in HERE.glob("test_*.py") if p.name != "test_tiers.py")
-    assert sorted(CHECK_TIER) == files
-    for name, tests in CHECK_TIER.items():
-        src = (HERE / name).read_text()
-        defined = set(re.findall(r"^def (test_\w+)\(", src, flags=re.M))
-        assert tests and set(tests) <= defined, f"{name}: {sorted(set(tests) - defined)} not defined there"
+def test_every_test_file_has_a_check_tier_test():
+    marked = re.compile(r"^@pytest\.mark\.check\n(?:@.*\n|\s.*\n)*def test_\w+\(", flags=re.M)
+    files = sorted(p for p in HERE.glob("test_*.py") if p.name != "test_tiers.py")
+    assert len(files) > 40
+    unmarked = [p.name for p in files if not marked.search(p.read_text())]
+    assert not unmarked, f"no test marked @pytest.mark.check in {unmarked}"

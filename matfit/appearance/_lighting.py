@@ -16,16 +16,8 @@ lobe shows the cells (FLIP up to 0.085).
 An equirectangular map contributes one direction per cell (its centre, weight
 :math:`L\,\sin\theta\,\Delta\theta\,\Delta\phi`); a far disc light of angular radius
 :math:`r` contributes ``1 + 3 R (R - 1)`` directions of equal weight on equal-area rings
-(``R`` rings). Reflection only: directions below a pixel's horizon are dropped.
-
-Examples
---------
->>> from matfit.models import Lambert
->>> from matfit.appearance import LIGHTINGS, render_lit
->>> img, inside = render_lit(Lambert(1.0), LIGHTINGS["furnace"], size=16)
->>> round(float(img[inside].mean()), 2)     # a white Lambertian sphere in a unit furnace
-1.0
-"""
+(``R`` rings). Reflection only: directions below a pixel's horizon are dropped. A white
+Lambertian sphere in the unit ``"furnace"`` renders 1."""
 
 from __future__ import annotations
 
@@ -53,13 +45,12 @@ class Lighting:
 
     Parameters
     ----------
-    name : str
+    name, description : str
+        The name and one line for reports.
     directions : numpy.ndarray, (M, 3)
         Unit world directions (camera along -z, up +y: :mod:`matfit.render`'s frame).
     weights : numpy.ndarray, (M, 3)
         Radiance times solid angle of each direction (linear RGB).
-    description : str
-        One line for reports.
 
     Examples
     --------
@@ -85,44 +76,17 @@ class Lighting:
         return 1.0 / float(np.max((np.clip(n @ self.directions.T, 0, None) @ self.weights) / np.pi))
 
     def renamed(self, name, description):
-        """The same quadrature under another name and description.
-
-        Parameters
-        ----------
-        name, description : str
-
-        Returns
-        -------
-        Lighting
-
-        Examples
-        --------
-        >>> LIGHTINGS["sky"].renamed("my sky", "a copy").name
-        'my sky'
-        """
+        """The same quadrature under another name and description."""
         return Lighting(name, self.directions, self.weights, description)
 
     def refined(self, factor):
-        """The same lighting with a ``factor`` times finer quadrature (shipped lightings only).
-
-        Parameters
-        ----------
-        factor : int
-
-        Returns
-        -------
-        Lighting
-
-        Examples
-        --------
-        >>> LIGHTINGS["studio"].refined(2).directions.shape[0] > LIGHTINGS["studio"].directions.shape[0]
-        True
-        """
+        """The same lighting with a ``factor`` times finer quadrature (shipped lightings only; others unchanged)."""
         return _BUILDERS[self.name](int(factor)) if self.name in _BUILDERS else self
 
 
 def map_light(image, name="map", refine=1, description="an environment map"):
-    """A :class:`Lighting` of an equirectangular map (one direction per cell).
+    """A :class:`Lighting` of an equirectangular map: one direction per cell, weighted by the cell's
+    exact solid angle.
 
     Parameters
     ----------
@@ -135,13 +99,6 @@ def map_light(image, name="map", refine=1, description="an environment map"):
     Returns
     -------
     Lighting
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> l = map_light(np.ones((8, 16, 3)))
-    >>> round(float(l.weights[:, 0].sum() / (4 * np.pi)), 3)      # the whole sphere's solid angle
-    1.0
     """
     img = load_environment(image)
     if img is None:
@@ -167,22 +124,16 @@ def disc_light(direction, radius, irradiance, rings=4, name="disc", description=
     direction : array_like (3,)
         Towards the light (world frame; normalized here).
     radius : float
-        Angular radius in radians, in (0, pi/2).
+        Angular radius in radians, in (0, pi/2); ParameterError otherwise (or for ``rings < 1``).
     irradiance : float or array_like (3,)
         Radiance times the disc's solid angle.
     rings : int, default 4
-        Equal-area rings: ``1 + 3 rings (rings - 1)`` directions.
+        Equal-area rings: ``1 + 3 rings (rings - 1)`` directions of equal weight.
     name, description : str
 
     Returns
     -------
     Lighting
-
-    Examples
-    --------
-    >>> l = disc_light([0, 1, 0], 0.1, 2.0, rings=3)
-    >>> l.directions.shape, round(float(l.weights[:, 1].sum()), 6)
-    ((19, 3), 2.0)
     """
     a = np.asarray(direction, np.float64)
     a = a / np.linalg.norm(a)
@@ -248,11 +199,6 @@ def lighting(spec):
     Returns
     -------
     Lighting
-
-    Examples
-    --------
-    >>> lighting("studio").name
-    'studio'
     """
     if isinstance(spec, Lighting):
         return spec
@@ -325,13 +271,6 @@ def render_lit(model, light="sky", size=SIZE, refine=1):
     tuple
         The linear image (size, size, 3) float32 (zero outside the sphere) and the boolean mask
         of the pixels inside it.
-
-    Examples
-    --------
-    >>> from matfit.models import RoughConductor
-    >>> img, inside = render_lit(RoughConductor(0.3, eta=0.2, k=3.0), "studio", size=24)
-    >>> img.shape, bool(img[inside].min() >= 0)
-    ((24, 24, 3), True)
     """
     if not isinstance(model, AbstractBSDF):
         raise ParameterError(f"render_lit: model must be a matfit model, got {type(model).__name__}")

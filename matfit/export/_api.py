@@ -38,8 +38,8 @@ def to_mitsuba(model) -> ExportResult:
     Raises
     ------
     ParameterError
-        ``model`` is not a matfit model, or has neither a plugin nor an approximation (a
-        :class:`~matfit.models.TabulatedMicrofacet`: the message names the nearest analytic model).
+        Not a matfit model, or one with neither a plugin nor an approximation (for a
+        :class:`~matfit.models.TabulatedMicrofacet` the message names the nearest analytic model).
 
     Examples
     --------
@@ -65,7 +65,7 @@ def to_mitsuba(model) -> ExportResult:
 
 
 def to_mitsuba_xml(model) -> ExportResult:
-    """:func:`to_mitsuba` as Mitsuba scene XML (a ``<bsdf>`` element).
+    """:func:`to_mitsuba` as Mitsuba scene XML: ``content`` is a ``<bsdf id="matfit">`` element.
 
     Parameters
     ----------
@@ -75,8 +75,7 @@ def to_mitsuba_xml(model) -> ExportResult:
     Returns
     -------
     ExportResult
-        ``content`` is the XML text, the ``<bsdf>`` with ``id="matfit"``; mapping, model and
-        fidelity are those of :func:`to_mitsuba`.
+        Mapping, model and fidelity are those of :func:`to_mitsuba`.
 
     Examples
     --------
@@ -96,30 +95,21 @@ EXPORTERS = {"mitsuba": to_mitsuba, "mitsuba-xml": to_mitsuba_xml, "pbrt": to_pb
 
 
 def export(model, to) -> ExportResult:
-    """Export ``model`` to the target ``to`` (a key of :data:`EXPORTERS`).
+    """Export ``model`` to the target ``to`` with its exporter in :data:`EXPORTERS`.
 
     Parameters
     ----------
     model : matfit.models.AbstractBSDF
     to : {"mitsuba", "mitsuba-xml", "pbrt", "gltf", "mtlx", "openpbr"}
-        The target.
 
     Returns
     -------
     ExportResult
-        What the target's exporter returns (:func:`to_mitsuba`, :func:`to_mitsuba_xml`,
-        :func:`to_pbrt`, :func:`to_gltf`, :func:`to_materialx`, :func:`to_openpbr`).
 
     Raises
     ------
     ParameterError
         An unknown target, or a model the target cannot take.
-
-    Examples
-    --------
-    >>> from matfit.models import Lambert
-    >>> export(Lambert(0.5), "mitsuba").content["type"]
-    'diffuse'
     """
     if to not in EXPORTERS:
         raise ParameterError(f"export: target must be one of {sorted(EXPORTERS)}, got {to!r}")

@@ -26,31 +26,21 @@ EXPORT_LOSS = "cbrt"
 
 
 def hemisphere_pairs(model, n=N_PAIRS, seed=0):
-    """``(wo, wi)`` (n, 3) float64 numpy arrays covering the upper hemisphere and ``model``'s lobes.
+    """``(wo, wi)`` (n, 3) float64 unit directions covering the upper hemisphere and ``model``'s lobes.
 
-    ``wo`` is stratified in cos(theta_o) and uniform in phi; half of the ``wi`` are uniform over
-    the hemisphere and half are drawn from ``model.sample`` (so narrow lobes are covered).
-    Every direction has cos(theta) >= 0.02.
+    ``wo`` stratified in cos(theta_o), uniform in phi; half of the ``wi`` uniform over the hemisphere,
+    half drawn from ``model.sample`` (so narrow lobes are covered); every cos(theta) >= 0.02.
 
     Parameters
     ----------
     model : matfit.models.AbstractBSDF
         The model whose sampler places half of the ``wi``.
     n : int, default N_PAIRS
-        Pairs.
     seed : int, default 0
 
     Returns
     -------
     wo, wi : numpy.ndarray, (n, 3) float64
-        Unit directions.
-
-    Examples
-    --------
-    >>> from matfit.models import Lambert
-    >>> wo, wi = hemisphere_pairs(Lambert(0.5), n=64)
-    >>> wo.shape, bool((wi[:, 2] > 0).all())
-    ((64, 3), True)
     """
     rng = np.random.default_rng(seed)
     mu = np.sqrt((np.arange(n) + rng.random(n)) / n)  # stratified, cosine-weighted in theta_o
@@ -86,7 +76,7 @@ def _eval(model, wo, wi):
 
 
 def relative_rmse(source, target, n=N_PAIRS, seed=1):
-    """Relative RMSE of ``target`` against ``source`` (see :class:`~matfit.export.Fidelity`).
+    """Relative RMSE of ``target`` against ``source`` (:class:`~matfit.export.Fidelity`).
 
     Parameters
     ----------
@@ -95,23 +85,13 @@ def relative_rmse(source, target, n=N_PAIRS, seed=1):
     n : int, default N_PAIRS
         Pairs of :func:`hemisphere_pairs` (placed by ``source``).
     seed : int, default 1
-        Seed of the pairs: another set than :func:`fit_target`'s default.
+        Another set than :func:`fit_target`'s default.
 
     Returns
     -------
     float
-        ``sqrt(sum w (f_t - f_s)^2 / sum w f_s^2)`` with ``w = cos(theta_o) cos(theta_i)``.
-
-    Raises
-    ------
-    MatfitError
-        A model evaluates to non-finite values on the hemisphere.
-
-    Examples
-    --------
-    >>> from matfit.models import Lambert
-    >>> round(relative_rmse(Lambert(0.5), Lambert(0.55)), 3)
-    0.1
+        ``sqrt(sum w (f_t - f_s)^2 / sum w f_s^2)``, ``w = cos(theta_o) cos(theta_i)``; a
+        :class:`~matfit.errors.MatfitError` if a model evaluates to non-finite values.
     """
     wo, wi = hemisphere_pairs(source, n, seed)
     fs, ft = _eval(source, wo, wi), _eval(target, wo, wi)
@@ -122,23 +102,19 @@ def relative_rmse(source, target, n=N_PAIRS, seed=1):
 
 
 def fit_target(source, family, init=None, fixed=None, n=N_PAIRS, seed=0, channels=None):
-    """Fit ``family`` (a :class:`~matfit.fitting.Family` whose models are the target's BRDF) to
-    ``source`` over the hemisphere with :func:`matfit.fitting.fit`; returns the fitted model.
+    """Fit ``family`` (the target's BRDF as a :class:`~matfit.fitting.Family`) to ``source`` over the hemisphere.
 
-    The source is evaluated on :func:`hemisphere_pairs` and fitted in :data:`EXPORT_LOSS`
-    (the cube-root loss, which tracks appearance) with weights ``cos(theta_o) cos(theta_i)``
-    (normalized), two starts.
+    The source is evaluated on :func:`hemisphere_pairs` and fitted with :func:`matfit.fitting.fit`
+    in :data:`EXPORT_LOSS` (the cube-root loss, which tracks appearance), weights
+    ``cos(theta_o) cos(theta_i)`` (normalized), two starts.
 
     Parameters
     ----------
     source : matfit.models.AbstractBSDF
-        The model to approximate.
     family : matfit.fitting.Family
-        The target's BRDF as a family of matfit models.
     init, fixed : dict, optional
-        Start values and fixed parameters, as for :func:`matfit.fitting.fit`.
+        As for :func:`matfit.fitting.fit`.
     n : int, default N_PAIRS
-        Pairs to fit on.
     seed : int, default 0
         Seed of the pairs.
     channels : int, optional
@@ -176,31 +152,23 @@ SPHERE_SIZE = 64
 
 
 def measure(source, target, method="fitted", err=None):
-    """The :class:`~matfit.export.Fidelity` of ``target`` standing for ``source``: the relative
-    RMSE over the hemisphere and the mean CIEDE2000 over the pixels of the two models' spheres
-    rendered noise-free under the sky lighting (:func:`matfit.appearance.render_lit`).
+    """The :class:`~matfit.export.Fidelity` of ``target`` standing for ``source``.
+
+    The relative RMSE over :data:`N_PAIRS` pairs and the mean CIEDE2000 over the pixels of the
+    two models' :data:`SPHERE_SIZE` pixel spheres rendered noise-free under the sky lighting
+    (:func:`matfit.appearance.render_lit`).
 
     Parameters
     ----------
     source, target : matfit.models.AbstractBSDF
-        The model and what stands for it.
     method : {"fitted", "mapped"}, default "fitted"
-        How ``target`` was found, recorded in the result.
+        Recorded in the result.
     err : float, optional
         The relative RMSE when already known (default: :func:`relative_rmse`).
 
     Returns
     -------
     Fidelity
-        The relative RMSE over :data:`N_PAIRS` pairs and the mean CIEDE2000 over the pixels
-        of :data:`SPHERE_SIZE` pixel spheres.
-
-    Examples
-    --------
-    >>> from matfit.models import Lambert
-    >>> f = measure(Lambert(0.5), Lambert(0.5))
-    >>> f.relative_rmse, f.ciede2000
-    (0.0, 0.0)
     """
     from ..appearance import render_lit
     from ..render import image_ciede2000

@@ -33,19 +33,7 @@ def _mx():
 
 
 def standard_library():
-    """The MaterialX standard libraries, loaded (for validating documents).
-
-    Returns
-    -------
-    MaterialX.Document
-        A document holding the standard data libraries.
-
-    Examples
-    --------
-    >>> lib = standard_library()
-    >>> lib.getNodeDef("ND_standard_surface_surfaceshader") is not None
-    True
-    """
+    """A MaterialX document holding the standard data libraries (for validating documents)."""
     mx = _mx()
     lib = mx.createDocument()
     mx.loadLibraries(mx.getDefaultDataLibraryFolders(), mx.getDefaultDataSearchPath(), lib)
@@ -187,12 +175,5 @@ def to_openpbr(model) -> ExportResult:
     -------
     ExportResult
         ``content`` is the ``.mtlx`` XML text, validated against MaterialX's libraries.
-
-    Examples
-    --------
-    >>> from matfit.models import Lambert
-    >>> r = to_openpbr(Lambert([0.5, 0.4, 0.3]))
-    >>> 'open_pbr_surface' in r.content, r.exact
-    (True, True)
     """
     return _surface_document(model, "open_pbr_surface", "to_openpbr", "openpbr")

@@ -2,13 +2,20 @@
 ``matfit export`` and ``matfit render`` read.
 
 The document is ``{"matfit_model": 1, "model": {"type": <class name>, <field>: <value>, ...}}``:
-array fields as (nested) lists of numbers, static fields as they are, nested models as nested
+array fields as (nested) lists of numbers (the shortest decimals that read back as the same
+values: a float32 0.4 is written 0.4), static fields as they are, nested models as nested
 objects, a sequence of nested models (:class:`~matfit.models.MultiLobe`'s ``lobes``) as a list
 of them. It holds numbers and names only (no pickles) and is read back by rebuilding each
 class from its fields, so every value is checked against the class's declared fields. A
 tabulated distribution of normals (:class:`~matfit.microfacet.TabulatedNDF`, the ``ndf`` of a
 :class:`~matfit.models.TabulatedMicrofacet`) is written as ``{"type": "TabulatedNDF", "theta",
 "d", "n_lambda"}``, its constructor's arguments, and rebuilt (and checked) by its constructor.
+
+Errors: writing a class outside :data:`MODEL_CLASSES` or non-finite values raises
+:class:`~matfit.errors.ParameterError`; reading raises :class:`~matfit.errors.DataFormatError`
+naming the file (or source) and field: a missing file, not JSON, no ``model`` field, an unknown
+``type``, missing or unexpected fields, values that are not (finite) numbers, a table the
+TabulatedNDF constructor rejects.
 """
 
 from __future__ import annotations
@@ -35,25 +42,7 @@ NDF_FIELDS = ("theta", "d", "n_lambda")
 
 
 def plain_numbers(a):
-    """Python floats (nested lists for arrays) of the shortest decimal strings that read back as the same values (a float32
-    0.4 is written 0.4, not 0.4000000059604645).
-
-    Parameters
-    ----------
-    a : array_like
-        Numbers of any dtype (non-floating ones are converted with ``float``).
-
-    Returns
-    -------
-    float or list
-        A float for a scalar, nested lists of floats for an array.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> plain_numbers(np.float32(0.4)), plain_numbers(np.array([0.1, 0.2], np.float32))
-    (0.4, [0.1, 0.2])
-    """
+    """Python floats (nested lists for arrays) of the shortest decimal strings that read back as the same values."""
     a = np.asarray(a)
     if a.dtype.kind != "f":
         return a.astype(float).tolist()
@@ -64,23 +53,16 @@ def plain_numbers(a):
 
 
 def describe_model(model) -> dict:
-    """The model's fields as a JSON-ready dict (nested models as nested dicts).
+    """The model's fields as a JSON-ready dict ``{"type": class name, field: value, ...}`` (the module's format).
 
     Parameters
     ----------
     model : matfit.models.AbstractBSDF
-        A model whose parameters are concrete (not traced), of a class in :data:`MODEL_CLASSES`.
+        Of a class in :data:`MODEL_CLASSES`, with concrete (not traced) parameters.
 
     Returns
     -------
     dict
-        ``{"type": class name, field: value, ...}``.
-
-    Examples
-    --------
-    >>> from matfit.models import Lambert
-    >>> describe_model(Lambert([0.5, 0.4, 0.3]))["type"]
-    'Lambert'
     """
     cls = type(model)
     if MODEL_CLASSES.get(cls.__name__) is not cls:
@@ -106,27 +88,7 @@ def describe_model(model) -> dict:
 
 
 def describe_ndf(ndf) -> dict:
-    r"""A tabulated distribution as a JSON-ready dict of its constructor's arguments: the node
-    angles (from the stored :math:`\sin^2\theta`), the normalized :math:`D` and the size of the
-    masking table.
-
-    Parameters
-    ----------
-    ndf : matfit.microfacet.TabulatedNDF
-        A distribution with concrete tables.
-
-    Returns
-    -------
-    dict
-        ``{"type": "TabulatedNDF", "theta": [...], "d": [...], "n_lambda": int}``.
-
-    Examples
-    --------
-    >>> from matfit.microfacet import GGX, TabulatedNDF
-    >>> d = describe_ndf(TabulatedNDF.from_distribution(GGX(0.3), n=16, n_lambda=32))
-    >>> d["type"], len(d["theta"]), len(d["d"]), d["n_lambda"]
-    ('TabulatedNDF', 16, 16, 32)
-    """
+    r"""A TabulatedNDF as its constructor's arguments: node angles (from the stored sin^2 theta), the normalized D, the masking table's size."""
     x = np.clip(np.asarray(ndf.x_nodes, np.float64), 0.0, 1.0)
     d = np.asarray(ndf.d_nodes)
     if not np.all(np.isfinite(d)):
@@ -136,33 +98,7 @@ def describe_ndf(ndf) -> dict:
 
 
 def ndf_from_description(d, where="model description"):
-    """Rebuild a :class:`~matfit.microfacet.TabulatedNDF` from :func:`describe_ndf`'s dict (its
-    constructor checks the table).
-
-    Parameters
-    ----------
-    d : dict
-        ``{"type": "TabulatedNDF", "theta", "d", "n_lambda"}``.
-    where : str
-        Named in error messages.
-
-    Returns
-    -------
-    matfit.microfacet.TabulatedNDF
-
-    Raises
-    ------
-    DataFormatError
-        Missing or unexpected fields, values that are not numbers, or a table the constructor
-        rejects.
-
-    Examples
-    --------
-    >>> from matfit.microfacet import GGX, TabulatedNDF
-    >>> tab = TabulatedNDF.from_distribution(GGX(0.3), n=64)
-    >>> round(float(ndf_from_description(describe_ndf(tab)).alpha_x), 3)
-    0.3
-    """
+    """Rebuild a TabulatedNDF from :func:`describe_ndf`'s dict (its constructor checks the table); errors name ``where``."""
     fields = set(d) - {"type"}
     if fields != set(NDF_FIELDS):
         raise DataFormatError(f"{where}: TabulatedNDF expects fields {list(NDF_FIELDS)}; missing "
@@ -195,13 +131,6 @@ def model_from_description(d, source="model description"):
     Returns
     -------
     matfit.models.AbstractBSDF
-
-    Examples
-    --------
-    >>> from matfit.models import RoughConductor
-    >>> m = RoughConductor(0.2, [0.2, 0.9, 1.1], [3.9, 2.4, 2.2])
-    >>> round(float(model_from_description(describe_model(m)).alpha), 6)
-    0.2
     """
     if not isinstance(d, dict) or "type" not in d:
         raise DataFormatError(f"{source}: a model must be an object with a 'type' field, found {type(d).__name__}")
@@ -241,22 +170,15 @@ def model_from_description(d, source="model description"):
 
 
 def save_model(path, model, **extra) -> None:
-    """Write ``model`` as a model document (JSON) at ``path``; ``extra`` keys are stored beside it.
+    """Write ``model`` as a model document (JSON) at ``path``, parent folders created.
 
     Parameters
     ----------
     path : str or PathLike
-        The file to write (parent folders are created).
     model : matfit.models.AbstractBSDF
         As for :func:`describe_model`.
     **extra
-        JSON-serializable values stored at the top level of the document beside ``model``
-        (e.g. ``family``).
-
-    Raises
-    ------
-    ParameterError
-        ``model`` cannot be described (:func:`describe_model`).
+        JSON-serializable values stored at the top level beside ``model`` (e.g. ``family``).
 
     Examples
     --------
@@ -276,7 +198,7 @@ def save_model(path, model, **extra) -> None:
 
 
 def load_model(path):
-    """Read a model from a model document or a ``report.json`` written by :func:`matfit.report.write_report`.
+    """Read a model from a model document or a ``report.json`` (:func:`matfit.report.write_report`).
 
     Parameters
     ----------
@@ -285,22 +207,6 @@ def load_model(path):
     Returns
     -------
     matfit.models.AbstractBSDF
-
-    Raises
-    ------
-    DataFormatError
-        A missing file, not JSON, no ``model`` field, or a model description that does not
-        rebuild (:func:`model_from_description`).
-
-    Examples
-    --------
-    >>> import os, tempfile
-    >>> from matfit.models import Lambert
-    >>> with tempfile.TemporaryDirectory() as d:
-    ...     save_model(os.path.join(d, "m.json"), Lambert([0.5, 0.4, 0.3]))
-    ...     m = load_model(os.path.join(d, "m.json"))
-    >>> type(m).__name__, [round(float(x), 6) for x in m.reflectance]
-    ('Lambert', [0.5, 0.4, 0.3])
     """
     p = Path(path)
     if not p.exists():

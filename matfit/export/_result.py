@@ -17,26 +17,7 @@ from ._model_file import plain_numbers
 
 
 def check_model(owner, model) -> None:
-    """A :class:`~matfit.errors.ParameterError` naming ``owner`` unless ``model`` is a matfit model.
-
-    Parameters
-    ----------
-    owner : str
-        The exporter, named in the message.
-    model : object
-
-    Raises
-    ------
-    ParameterError
-        ``model`` is not a :class:`~matfit.models.AbstractBSDF`.
-
-    Examples
-    --------
-    >>> check_model("to_pbrt", "lambert")
-    Traceback (most recent call last):
-    ...
-    matfit.errors.ParameterError: to_pbrt: model must be a matfit model, got str
-    """
+    """Raise a ParameterError naming ``owner`` unless ``model`` is a matfit model."""
     if not isinstance(model, AbstractBSDF):
         raise ParameterError(f"{owner}: model must be a matfit model, got {type(model).__name__}")
 
@@ -54,35 +35,9 @@ def _tabulated_parts(model):
 
 
 def reject_tabulated(owner, model, target) -> None:
-    """A :class:`~matfit.errors.ParameterError` when ``model`` is (or holds) a
-    :class:`~matfit.models.TabulatedMicrofacet`, which ``target`` cannot represent: the message
-    names the model and suggests the nearest analytic model (the GGX or Beckmann width of least
-    misfit to its tabulated D, :func:`~matfit.microfacet.nearest_analytic`, with its eta and k).
-
-    Parameters
-    ----------
-    owner : str
-        The exporter, named in the message.
-    model : matfit.models.AbstractBSDF
-        The model to export.
-    target : str
-        The renderer, named in the message.
-
-    Raises
-    ------
-    ParameterError
-        ``model`` holds a tabulated distribution of normals.
-
-    Examples
-    --------
-    >>> from matfit.microfacet import GGX, TabulatedNDF
-    >>> from matfit.models import Lambert, TabulatedMicrofacet
-    >>> reject_tabulated("to_pbrt", Lambert(0.5), "pbrt-v4")  # nothing tabulated: no error
-    >>> tab = TabulatedMicrofacet(TabulatedNDF.from_distribution(GGX(0.2)), 1.0, 3.0)
-    >>> reject_tabulated("to_pbrt", tab, "pbrt-v4")  # doctest: +ELLIPSIS
-    Traceback (most recent call last):
-    ...
-    matfit.errors.ParameterError: to_pbrt: TabulatedMicrofacet ... RoughConductor(alpha=0.2, ...
+    """Raise a ParameterError when ``model`` is or holds a TabulatedMicrofacet, which ``target`` cannot
+    represent: the message names the nearest analytic model (GGX or Beckmann width of least misfit to
+    the tabulated D, :func:`~matfit.microfacet.nearest_analytic`, with its eta and k).
     """
     parts = _tabulated_parts(model)
     if not parts:
@@ -99,25 +54,7 @@ def reject_tabulated(owner, model, target) -> None:
 
 
 def rgb(owner, x):
-    """Three plain numbers for a colour of 1 (repeated) or 3 channels; an error naming ``owner`` else.
-
-    Parameters
-    ----------
-    owner : str
-        The exporter, named in the message.
-    x : array_like
-        A colour of 1 or 3 channels.
-
-    Returns
-    -------
-    list of float
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> rgb("to_gltf", np.float32(0.4)), rgb("to_gltf", [0.1, 0.2, 0.3])
-    ([0.4, 0.4, 0.4], [0.1, 0.2, 0.3])
-    """
+    """Three plain numbers for a colour of 1 (repeated) or 3 channels; a ParameterError naming ``owner`` else."""
     a = np.asarray(x).ravel()
     if a.size not in (1, 3):
         raise ParameterError(f"{owner}: colours have 3 channels, the model has {a.size}")
@@ -212,11 +149,14 @@ class ExportResult:
 
     Examples
     --------
-    >>> from matfit.export import to_mitsuba
+    >>> from matfit.export import to_pbrt
     >>> from matfit.models import Lambert
-    >>> r = to_mitsuba(Lambert([0.5, 0.4, 0.3]))
-    >>> r.target, r.exact, r.fidelity, r.content["reflectance"]
-    ('mitsuba', True, None, {'type': 'rgb', 'value': [0.5, 0.4, 0.3]})
+    >>> r = to_pbrt(Lambert([0.5, 0.4, 0.3]))
+    >>> r.target, r.exact, r.fidelity
+    ('pbrt', True, None)
+    >>> print(r.summary())
+    export to pbrt: exact
+      reflectance = [0.5, 0.4, 0.3]              <- albedo           exact
     """
 
     target: str
@@ -232,68 +172,18 @@ class ExportResult:
         return all(m.exact for m in self.mapping)
 
     def text(self) -> str:
-        """The document as text (JSON for dict targets).
-
-        Returns
-        -------
-        str
-
-        Examples
-        --------
-        >>> import json
-        >>> from matfit.export import to_gltf
-        >>> from matfit.models import Lambert
-        >>> json.loads(to_gltf(Lambert(0.5)).text())["asset"]["version"]
-        '2.0'
-        """
+        """The document as text (JSON for dict targets)."""
         return self.content if isinstance(self.content, str) else json.dumps(self.content, indent=2)
 
     def write(self, path):
-        """Write :meth:`text` to ``path`` (parent folders are created).
-
-        The file ends with a newline.
-
-        Parameters
-        ----------
-        path : str or PathLike
-
-        Returns
-        -------
-        Path
-            ``path``, as a :class:`pathlib.Path`.
-
-        Examples
-        --------
-        >>> import tempfile
-        >>> from matfit.export import to_pbrt
-        >>> from matfit.models import Lambert
-        >>> with tempfile.TemporaryDirectory() as d:
-        ...     p = to_pbrt(Lambert(0.5)).write(f"{d}/scene/material.pbrt")
-        ...     p.name, p.read_text().splitlines()[0]
-        ('material.pbrt', '# matfit export: Lambert (exact)')
-        """
+        """Write :meth:`text` to ``path``, ending with a newline (parent folders are created); returns the :class:`pathlib.Path`."""
         p = Path(path)
         p.parent.mkdir(parents=True, exist_ok=True)
         p.write_text(self.text() + ("" if self.text().endswith("\n") else "\n"))
         return p
 
     def summary(self) -> str:
-        """A table of the mapping, then the fidelity when approximate.
-
-        Returns
-        -------
-        str
-            One line per parameter (target name, value, source, exact or why not), then the
-            fidelity and the notes.
-
-        Examples
-        --------
-        >>> from matfit.export import to_pbrt
-        >>> from matfit.models import Lambert
-        >>> print(to_pbrt(Lambert([0.5, 0.4, 0.3])).summary())
-        export to pbrt: exact
-          reflectance = [0.5, 0.4, 0.3]              <- albedo           exact
-        """
+        """One line per parameter (target name, value, source, exact or why not), then the fidelity and the notes."""
         lines = [f"export to {self.target}: {'exact' if self.exact else 'approximate'}"]
         w = max([len(m.target) for m in self.mapping] + [9])
         for m in self.mapping:
@@ -307,22 +197,7 @@ class ExportResult:
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
-        """JSON-ready description (the mapping and the fidelity, not the document).
-
-        Returns
-        -------
-        dict
-            ``target``, ``exact``, ``mapping`` (a dict per parameter), ``fidelity`` (a dict or
-            None) and ``notes``.
-
-        Examples
-        --------
-        >>> from matfit.export import to_pbrt
-        >>> from matfit.models import Lambert
-        >>> d = to_pbrt(Lambert(0.5)).to_dict()
-        >>> d["exact"], d["mapping"][0]["target"], d["fidelity"]
-        (True, 'reflectance', None)
-        """
+        """JSON-ready ``target``, ``exact``, ``mapping`` (a dict per parameter), ``fidelity`` (dict or None) and ``notes``; not the document."""
         return {"target": self.target, "exact": self.exact,
                 "mapping": [m.__dict__ for m in self.mapping],
                 "fidelity": None if self.fidelity is None else self.fidelity.__dict__, "notes": list(self.notes)}

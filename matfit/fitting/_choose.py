@@ -8,13 +8,12 @@ r"""Which family: cheap cues of the data pick the candidates, the rendered image
    the lower decile off it, :math:`\theta_h > 30°`, both angles below 70°); a coloured highlight
    (the saturation of the near-mirror excess over the floor's colour, where the specular ratio
    is above 2); a colour change with angle (the spread of that excess's chromaticity over the
-   bands :math:`\theta_d` 0-20-40-60-90°); an
-   excess at grazing angles (off-mirror rows with both angles past 70° over the floor, where the
-   floor is diffuse: specular ratio below 10; read a sheen lobe only where the backward rows,
-   both directions on one side, show it too); a second
+   bands :math:`\theta_d` 0-20-40-60-90°); an excess at grazing angles (off-mirror rows with
+   both angles past 70° over the floor, where the floor is diffuse: specular ratio below 10; a
+   sheen lobe only where the backward rows, both directions on one side, show it too); a second
    lobe (the RMS, in log, of the peak's excess over the floor about the best single GGX shape in
-   :math:`\theta_h`); an azimuthal dependence (the spread of log values over the half
-   vector's azimuth in cells of :math:`\theta_h, \theta_d`, about a plane in those angles).
+   :math:`\theta_h`); an azimuthal dependence (the spread of log values over the half vector's
+   azimuth in cells of :math:`\theta_h, \theta_d`, about a plane in those angles).
 2. **Candidates**: ``lambert``, ``plastic``, ``lobes1`` and ``lobes2`` always; ``lobes3`` with a
    second lobe; ``car_paint`` with a coloured highlight or a colour change; ``film`` (a thin-film
    lobe) with a colour change; ``sheen`` with a grazing excess that the backward rows show too;
@@ -25,17 +24,8 @@ r"""Which family: cheap cues of the data pick the candidates, the rendered image
    is the line under which the two look alike. The chosen family is the one of fewest
    parameters whose score is within :data:`SCORE_TOL` (10 %) of the best; the runner-up is the
    best of the others. Without a reference to render (a table from no file, no truth; or
-   channels other than 1 or 3), the
-   families are compared on a held-out split instead (:func:`~matfit.fitting.compare_models`).
-
-Example
--------
->>> import numpy as np
->>> from matfit import Table
->>> from matfit.fitting import appearance_cues
->>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
->>> appearance_cues(Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1)))["coloured_highlight"]
-False
+   channels other than 1 or 3), the families are compared on a held-out split instead
+   (:func:`~matfit.fitting.compare_models`).
 """
 
 from __future__ import annotations
@@ -76,11 +66,10 @@ def _angles(table):
 
 
 def highlight_hues(table, model=None):
-    """The hue (degrees, HSV) of the highlight per band of difference angle (``BANDS`` of the
-    film's start, ``matfit/fitting/_film_guess.py``): the mean RGB of the rows within
-    ``NEAR_DEGREES`` of the mirror direction, from the table's values or, given ``model``, from
-    the model's on the same rows. How a thin film shows in data: its hue turns from band to band;
-    a fit that carries the film turns with it.
+    """The hue (degrees, HSV) of the highlight per band of difference angle (``BANDS`` of
+    ``_film_guess.py``): the mean RGB of the rows within ``NEAR_DEGREES`` of the mirror direction.
+    A thin film shows in data as a hue that turns from band to band; a fit that carries the film
+    turns with it.
 
     Parameters
     ----------
@@ -164,10 +153,10 @@ def appearance_cues(table):
     -------
     dict
         Each cue's value (``specular_ratio``, ``highlight_saturation``, ``colour_spread``,
-        ``grazing_ratio``, ``grazing_back_ratio`` (the same over the backward grazing rows only),
-        ``lobe_misfit``, ``azimuthal_spread``; NaN where the table has too
-        few rows for it) and the booleans ``second_lobe``, ``coloured_highlight``,
-        ``colour_shift``, ``grazing_excess``, ``azimuthal``, ``dark_floor``.
+        ``grazing_ratio``, ``grazing_back_ratio`` (over the backward grazing rows only),
+        ``lobe_misfit``, ``azimuthal_spread``; NaN where the table has too few rows for it) and the
+        booleans ``second_lobe``, ``coloured_highlight``, ``colour_shift``, ``grazing_excess``,
+        ``azimuthal``, ``dark_floor``.
 
     Examples
     --------
@@ -321,8 +310,7 @@ class Choice:
 
     Attributes
     ----------
-    chosen : str
-    runner_up : str or None
+    chosen, runner_up : str, str or None
     reason : str
         One sentence: why the chosen family.
     judged_by : str
@@ -337,8 +325,9 @@ class Choice:
 
     Examples
     --------
-    >>> Choice("lambert", None, "only candidate", "appearance", [], {}, []).chosen
-    'lambert'
+    >>> c = Choice("lambert", None, "only candidate", "appearance")
+    >>> c.summary(), c.to_dict()["chosen"]
+    ('chose lambert by appearance: only candidate', 'lambert')
     """
 
     chosen: str
@@ -350,17 +339,7 @@ class Choice:
     missing: list = field(default_factory=list)
 
     def to_dict(self):
-        """For JSON: everything but the fits and images.
-
-        Returns
-        -------
-        dict
-
-        Examples
-        --------
-        >>> Choice("lambert", None, "only candidate", "appearance").to_dict()["chosen"]
-        'lambert'
-        """
+        """For JSON: everything but the fits and images."""
         return {"chosen": self.chosen, "runner_up": self.runner_up, "reason": self.reason,
                 "judged_by": self.judged_by, "missing": list(self.missing),
                 "cues": {k: (v if isinstance(v, bool) else (None if not np.isfinite(v) else float(v)))
@@ -368,17 +347,7 @@ class Choice:
                 "candidates": [{k: v for k, v in r.items() if k not in ("result", "diff")} for r in self.rows]}
 
     def summary(self):
-        """A few lines: the chosen family, why, and the candidates' scores.
-
-        Returns
-        -------
-        str
-
-        Examples
-        --------
-        >>> Choice("lambert", None, "only candidate", "appearance").summary()
-        'chose lambert by appearance: only candidate'
-        """
+        """A few lines: the chosen family, why, and the candidates' scores."""
         lines = [f"chose {self.chosen} by {self.judged_by}: {self.reason}"]
         for r in self.rows:
             if "error" in r:
@@ -423,9 +392,8 @@ def choose_family(table, reference="auto", candidates=None, loss=None, log=None,
     Returns
     -------
     tuple
-        The chosen :class:`~matfit.fitting.FitResult` (its ``choice`` set to the :class:`Choice`,
-        its ``appearance`` to the chosen fit's :class:`~matfit.appearance.AppearanceDiff`) and
-        the :class:`Choice`.
+        The chosen :class:`~matfit.fitting.FitResult` (``choice`` set to the :class:`Choice`,
+        ``appearance`` to its :class:`~matfit.appearance.AppearanceDiff`) and the :class:`Choice`.
 
     Examples
     --------
@@ -434,8 +402,7 @@ def choose_family(table, reference="auto", candidates=None, loss=None, log=None,
     >>> from matfit.models import Lambert
     >>> rng = np.random.default_rng(1)
     >>> wo = rng.normal(size=(60, 3)); wo[:, 2] = abs(wo[:, 2]); wo /= np.linalg.norm(wo, axis=1, keepdims=True)
-    >>> wi = wo[::-1].copy()
-    >>> t = Table(wo=wo, wi=wi, values=np.full((60, 3), 0.4 / np.pi))
+    >>> t = Table(wo=wo, wi=wo[::-1].copy(), values=np.full((60, 3), 0.4 / np.pi))
     >>> r, c = choose_family(t, reference=Lambert(0.4), candidates=["lambert"], starts=1)
     >>> c.chosen, c.judged_by, r.appearance.looks_alike
     ('lambert', 'appearance', True)

@@ -1,28 +1,13 @@
 """Families of a Lambertian base plus microfacet lobes, declared in a few lines.
 
 :func:`~matfit.fitting.compose_family` turns a list of :class:`Lobe` specifications into a
-:class:`~matfit.fitting.Family` of :class:`~matfit.models.MultiLobe` models. This module holds
-what does not need the :class:`~matfit.fitting.Param` class: the specification, the layout of
-the parameters (names, bounds, generic starts), the build of the model from the parameters'
-values and the data-driven start (a variable projection: for a few candidate widths and Fresnel
-levels, the lobes' amplitudes and the diffuse albedo by weighted non-negative least squares,
-the best candidate kept).
-
-Parameter names (lobes numbered from 1; a parameter shared by the lobes has no suffix):
-
-=============  ===========================================================================
-``albedo``     the Lambertian base's albedo, per channel (``base="lambert"``)
-``alpha_1``    the first lobe's width
-``ratio_j``    ``alpha_j / alpha_{j-1}`` > 1 (``ordered=True``: the lobes from narrow to wide)
-``alpha_j``    lobe j's width (``ordered=False``)
-``ks_j``       lobe j's weight per channel (``weights="channels"``)
-``mix_j``      the share of lobe j in the weight of lobes 1..j (``weights="mixture"``, j >= 2)
-``f0_j``       a Schlick lobe's normal-incidence reflectance
-``eta_j``      a dielectric lobe's index, or a conductor lobe's real index (per channel)
-``k_j``        a conductor lobe's extinction, per channel
-``thickness_j``  a thin-film lobe's film thickness (nm)
-``film_eta_j``   a thin-film lobe's film index (its ``eta_j`` is the index under the film)
-=============  ===========================================================================
+:class:`~matfit.fitting.Family` of :class:`~matfit.models.MultiLobe` models (its docstring
+tables the parameters: names, bounds, meaning). This module holds what does not need the
+:class:`~matfit.fitting.Param` class: the specification, the layout of the parameters (names,
+bounds, generic starts), the build of the model from the parameters' values and the data-driven
+start (a variable projection: for a few candidate widths and Fresnel levels, the lobes'
+amplitudes and the diffuse albedo by weighted non-negative least squares, the best candidate
+kept). Lobes are numbered from 1; a parameter shared by the lobes has no suffix.
 """
 
 from __future__ import annotations
@@ -112,30 +97,10 @@ class Lobe:
 
 @dataclass(frozen=True)
 class Slot:
-    """One parameter of a composed family: what a :class:`~matfit.fitting.Param` is made from.
-
-    Parameters
-    ----------
-    name : str
-        The parameter's name.
-    kind : str
-        ``"albedo"``, ``"alpha"``, ``"ratio"``, ``"ks"``, ``"mix"``, ``"f0"``, ``"eta"`` or ``"k"``.
-    lobes : tuple of int
-        The lobes (0-based) that read it (empty for the albedo).
-    lower, upper : float
-        Bounds.
-    per_channel : bool
-        Whether it has a colour-channel axis.
-    doc : str
-        One line for reports.
-    generic : float
-        The generic start.
-
-    Examples
-    --------
-    >>> from matfit.fitting.params import Lobe, lobe_layout
-    >>> [s.name for s in lobe_layout("lambert", (Lobe(), Lobe()), "channels", True, ("f0",), ())]
-    ['albedo', 'alpha_1', 'ks_1', 'f0', 'ratio_2', 'ks_2']
+    """One parameter of a composed family, what a :class:`~matfit.fitting.Param` is made from:
+    ``name``, ``kind`` (``"albedo"``, ``"alpha"``, ``"ratio"``, ``"ks"``, ``"mix"`` or a Fresnel
+    parameter), the 0-based ``lobes`` that read it (none for the albedo), bounds, ``per_channel``,
+    a report line ``doc`` and the ``generic`` start.
     """
 
     name: str
@@ -166,37 +131,9 @@ def _fresnel_slot(kind, lobe, fresnel, per_channel, name, lobes):
 
 
 def lobe_layout(base, lobes, weights, ordered, share, tied):
-    """The parameters of a composed family, in the order of the unconstrained vector.
-
-    Parameters
-    ----------
-    base : {"lambert", None}
-        A Lambertian base (an ``albedo`` per channel), or none.
-    lobes : sequence of Lobe
-        The lobes.
-    weights : {"channels", "mixture", "none"}
-        How the lobes are weighted (:data:`WEIGHT_MODES`).
-    ordered : bool
-        Widths ordered from narrow to wide (``ratio_j`` parameters).
-    share : sequence of str
-        Fresnel parameters shared by the lobes (:data:`SHAREABLE`).
-    tied : sequence of str
-        Per-channel parameters made one value for every channel.
-
-    Returns
-    -------
-    tuple of Slot
-
-    Raises
-    ------
-    matfit.ParameterError
-        For an unknown option, or a shared parameter of lobes with different Fresnel terms.
-
-    Examples
-    --------
-    >>> from matfit.fitting.params import Lobe, lobe_layout
-    >>> [s.name for s in lobe_layout(None, (Lobe(fresnel="conductor"),) * 2, "mixture", True, ("eta", "k"), ())]
-    ['alpha_1', 'eta', 'k', 'ratio_2', 'mix_2']
+    """The :class:`Slot` of every parameter of a composed family, in the order of the unconstrained
+    vector (the arguments are :func:`~matfit.fitting.compose_family`'s). Raises ParameterError for
+    an unknown option, a shared parameter of lobes with different Fresnel terms or of one lobe only.
     """
     owner = "compose_family"
     if base not in ("lambert", None):
@@ -269,29 +206,9 @@ def _eta_from_reflectance(r0):
 
 @dataclass(frozen=True)
 class LobeSpec:
-    """Everything a composed family knows: its base, lobes, weights, ordering, parameter layout
-    and the values it holds fixed; builds the model and refines the data-driven start.
-
-    Parameters
-    ----------
-    base : {"lambert", None}
-        The base.
-    lobes : tuple of Lobe
-        The lobes.
-    weights : {"channels", "mixture", "none"}
-        How the lobes are weighted.
-    ordered : bool
-        Widths through ratios (narrow to wide).
-    slots : tuple of Slot
-        Every parameter (the fixed ones included).
-    fixed : tuple
-        ``(name, values)`` pairs of the parameters held fixed (values a tuple of floats).
-
-    Examples
-    --------
-    >>> from matfit.fitting import get_family
-    >>> type(get_family("lobes2").build).__name__
-    'LobeSpec'
+    """Everything a composed family knows (its base, lobes, weights, ordering, every parameter's
+    :class:`Slot` and the ``(name, values)`` pairs it holds fixed): the family's ``build`` (a call
+    gives the :class:`~matfit.models.MultiLobe` of ``values``, C channels) and its data-driven start.
     """
 
     base: Optional[str]
@@ -305,16 +222,9 @@ class LobeSpec:
         return next(s for s in self.slots if s.kind == kind and j in s.lobes)
 
     def lobe_names(self, j):
-        """The names of the parameters lobe ``j`` (0-based) reads, as a dict ``{kind: name}``:
-        ``"width"`` (``alpha_j``, or ``ratio_j`` of an ordered lobe after the first), ``"ks"`` or
-        ``"mix"`` (its weight, when it has a parameter of its own) and its Fresnel parameters
-        (``"f0"``, ``"eta"``, ``"k"``; a shared one has no suffix).
-
-        Examples
-        --------
-        >>> from matfit.fitting import get_family
-        >>> get_family("lobes2").build.lobe_names(1)
-        {'width': 'ratio_2', 'ks': 'ks_2', 'f0': 'f0'}
+        """``{kind: name}`` of the parameters lobe ``j`` (0-based) reads: ``"width"`` (``alpha_j``, or
+        ``ratio_j`` of an ordered lobe after the first), ``"ks"`` or ``"mix"`` (a weight of its own)
+        and its Fresnel parameters.
         """
         width = "ratio" if (self.ordered and j > 0) else "alpha"
         out = {"width": self._slot(width, j).name}
@@ -327,15 +237,8 @@ class LobeSpec:
         return out
 
     def widths(self, values):
-        """The list of the lobes' widths from a mapping ``values`` of parameter name to value
-        (the fixed ones may be left out): ratios multiplied out, an ordered Blinn-Phong lobe
-        capped at 1 (its exponent is negative beyond).
-
-        Examples
-        --------
-        >>> from matfit.fitting import get_family
-        >>> [round(float(a), 6) for a in get_family("lobes3").build.widths({"alpha_1": 0.05, "ratio_2": 4.0, "ratio_3": 2.0})]
-        [0.05, 0.2, 0.4]
+        """The lobes' widths from ``{name: value}`` (fixed ones may be left out): ratios multiplied
+        out, an ordered Blinn-Phong lobe capped at 1 (its exponent is negative beyond).
         """
         p = {**{n: jnp.asarray(v) for n, v in self.fixed}, **values}
         out = []
@@ -346,15 +249,8 @@ class LobeSpec:
         return out
 
     def lobe_weights(self, values):
-        """The list of the lobes' weights from a mapping ``values`` of parameter name to value:
-        ``ks_j`` (weights per channel), the stick-breaking weights of ``mix_j`` (a mixture: lobe
-        j takes the share ``mix_j`` of lobes 1..j, so that the weights sum to 1), or 1.
-
-        Examples
-        --------
-        >>> from matfit.fitting import get_family
-        >>> [round(float(w), 6) for w in get_family("metal2").build.lobe_weights({"mix_2": 0.25})]
-        [0.75, 0.25]
+        """The lobes' weights from ``{name: value}``: ``ks_j``, the stick-breaking weights of ``mix_j``
+        (lobe j takes the share ``mix_j`` of lobes 1..j, so that the weights sum to 1), or 1.
         """
         p = {**{n: jnp.asarray(v) for n, v in self.fixed}, **values}
         K = len(self.lobes)
@@ -371,26 +267,7 @@ class LobeSpec:
         return out
 
     def __call__(self, values, C):
-        """The :class:`~matfit.models.MultiLobe` of the parameters' values (the family's build).
-
-        Parameters
-        ----------
-        values : mapping
-            Every free parameter's value (per-channel ones ``(C,)``).
-        C : int
-            Number of colour channels.
-
-        Returns
-        -------
-        MultiLobe
-
-        Examples
-        --------
-        >>> from matfit.fitting import get_family
-        >>> m = get_family("lobes1").build({"albedo": 0.5, "alpha_1": 0.1, "ks_1": 0.9, "f0": 0.04}, 1)
-        >>> type(m).__name__, len(m.lobes)
-        ('MultiLobe', 1)
-        """
+        """The :class:`~matfit.models.MultiLobe` of the free parameters' ``values`` (per channel: (C,))."""
         p = {**{n: jnp.asarray(v) for n, v in self.fixed}, **values}
         alphas, weights = self.widths(p), self.lobe_weights(p)
         lobes = []
@@ -407,43 +284,21 @@ class LobeSpec:
     # The data-driven start
     # ---------------------------------------------------------------------------------------------
     def refine(self, WO, WI, V, M, guess, family) -> None:
-        """The family's data-driven start (its :attr:`~matfit.fitting.Family.refine` hook).
+        """The family's data-driven start (its :attr:`~matfit.fitting.Family.refine` hook): updates
+        ``guess`` in place for the stack of tables ``WO, WI`` (B, N, 3), ``V`` (B, N, C), valid rows
+        ``M``, with every parameter of ``family`` that is not a constant start.
 
-        For every candidate of a small grid (the first lobe's width at :data:`WIDTH_FACTORS` of
-        the peak's half width ``guess["alpha"]``, each next lobe :data:`WIDTH_RATIOS` times
-        wider; a Schlick lobe's F0 at :data:`F0_CANDIDATES`), the diffuse albedo and the lobes' amplitudes per channel
-        solve a non-negative weighted least-squares problem on the table's rows (the diffuse
-        level read where the lobes are small, the lobes' heights near the mirror direction;
-        weights ``1 / (f + median f)^2``, relative near the peak and absolute in the tail). The
-        candidate with the smallest residual gives every parameter's start: widths, amplitudes
-        (the weights ``ks_j``, the mixture shares, or the Fresnel level where the lobes are not
-        weighted) and the Fresnel parameters (a conductor's ``k`` at ``eta = 1`` from its
-        normal-incidence reflectance).
-
-        Parameters
-        ----------
-        WO, WI : numpy.ndarray (B, N, 3)
-            Directions of a stack of tables.
-        V : numpy.ndarray (B, N, C)
-            Values.
-        M : numpy.ndarray of bool (B, N)
-            Valid rows.
-        guess : dict
-            The generic guess (``guess["alpha"]``: the peak's half width per table); updated in
-            place with every parameter of the family that is not a constant start.
-        family : Family
-            The family (its parameters' bounds and constant starts).
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from matfit import Table
-        >>> from matfit.fitting import Parametrization, initial_guess
-        >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8], [0.0, -0.6, 0.8]])
-        >>> t = Table(wo=wo, wi=wo[[0, 3, 1, 2]], values=np.full((4, 3), 0.3 / np.pi))
-        >>> g = initial_guess(t, Parametrization("lobes1", 3))
-        >>> [round(float(a), 2) for a in g["albedo"]]  # a Lambertian table: the diffuse level
-        [0.3, 0.3, 0.3]
+        For every candidate of a small grid (the first lobe's width at :data:`WIDTH_FACTORS` of the
+        peak's half width ``guess["alpha"]``, each next lobe :data:`WIDTH_RATIOS` times wider; a
+        Schlick lobe's F0 at :data:`F0_CANDIDATES`; a thin film's :data:`FILM_CANDIDATES` best films),
+        the diffuse albedo and the lobes' amplitudes per channel solve a non-negative weighted
+        least-squares problem on the table's rows (the diffuse level read where the lobes are small,
+        their heights near the mirror direction; weights ``1 / (f + median f)^2``, relative near the
+        peak and absolute in the tail). The candidate with the smallest residual gives every start:
+        widths, amplitudes (the weights ``ks_j``, the mixture shares, or the Fresnel level where the
+        lobes are not weighted) and the Fresnel parameters (a conductor's ``k`` at ``eta = 1`` from its
+        normal-incidence reflectance). A single table of more than :data:`MAX_ROWS` rows is read on a
+        fixed random subset of them.
         """
         B, N, C = V.shape
         if B == 1 and N > MAX_ROWS:  # a large table: a fixed random subset of its valid rows
@@ -693,35 +548,12 @@ def _nnls_channels(A, y, W):
 
 @dataclass(frozen=True)
 class LobeRefine:
-    """The :attr:`~matfit.fitting.Family.refine` hook of a composed family: :meth:`LobeSpec.refine`
-    as a value (two families composed alike compare equal, hooks included).
-
-    Parameters
-    ----------
-    spec : LobeSpec
-        The family's specification.
-
-    Examples
-    --------
-    >>> from matfit.fitting import get_family
-    >>> type(get_family("lobes2").refine).__name__
-    'LobeRefine'
+    """The :attr:`~matfit.fitting.Family.refine` hook of a composed family: :meth:`LobeSpec.refine` as
+    a value (two families composed alike compare equal, hooks included).
     """
 
     spec: LobeSpec
 
     def __call__(self, WO, WI, V, M, guess, family) -> None:
-        """Refine ``guess`` in place (:meth:`LobeSpec.refine`).
-
-        Parameters
-        ----------
-        WO, WI, V, M, guess, family
-            As for :meth:`LobeSpec.refine`.
-
-        Examples
-        --------
-        >>> from matfit.fitting import get_family
-        >>> callable(get_family("lobes1").refine)
-        True
-        """
+        """Refine ``guess`` in place (:meth:`LobeSpec.refine`)."""
         self.spec.refine(WO, WI, V, M, guess, family)

@@ -5,17 +5,20 @@ A rough conductor is ``f = F(theta_d) * D(h) G2(wo, wi, h) / (4 cos_o cos_i)`` w
 the angle between ``wi`` and the half vector ``h``. The microfacet factor
 ``m = D G2 / (4 cos_o cos_i)`` depends on ``alpha`` only, so
 
-1. for each ``alpha`` on a grid around the half-width estimate, ``log(f / m)`` must be a
-   function of ``theta_d`` alone; the ``alpha`` whose ``log(f / m)`` varies least within bins of
-   ``theta_d`` wins;
+1. for each ``alpha`` on a grid around the half-width estimate (0.4x to 2.5x, then one
+   parabolic step in ``log alpha``), ``log(f / m)`` must be a function of ``theta_d`` alone;
+   the ``alpha`` whose ``log(f / m)`` varies least within bins of ``theta_d`` wins;
 2. with that ``alpha``, the median of ``f / m`` in each ``theta_d`` bin is a measured Fresnel
    curve ``F(theta_d)`` per channel, and ``(eta, k)`` come from a grid search of
    :func:`matfit.fresnel.fresnel_conductor` against that curve (relative error, bins weighted by
    their row counts).
 
-A start from this guess lies in the basin of the global optimum for the tables of
-``experiments/recovery.py`` where the half-width guess with ``eta = 1`` ran into the bounds of
-``eta`` and ``k`` (local minima at ``eta -> 8`` or ``k -> 0``).
+Only rows that carry shape information are read: valid, both directions above the surface,
+every channel positive, channel mean above ``_MIN_RELATIVE`` of the brightest row's; a curve
+needs ``_MIN_BINS`` bins of ``_MIN_ROWS_PER_BIN`` rows. A start from this guess lies in the
+basin of the global optimum for the tables of ``experiments/recovery.py`` where the half-width
+guess with ``eta = 1`` ran into the bounds of ``eta`` and ``k`` (local minima at ``eta -> 8`` or
+``k -> 0``).
 """
 
 from __future__ import annotations
@@ -43,9 +46,8 @@ _MAX_ROWS = 50_000
 
 
 def _theta_d_bins(wo, wi, v, valid):
-    """Rows that carry shape information, their half vector, ``theta_d`` (degrees) and its bin,
-    for arrays ``(..., N, 3)``, ``(..., N, C)`` and a validity mask ``(..., N)``:
-    ``(keep (..., N), h (..., N, 3), theta_d (..., N), bin index (..., N))``."""
+    """``(keep, h, theta_d in degrees, bin index)`` of rows ``(..., N, 3)``, values ``(..., N, C)``
+    and a validity mask ``(..., N)``: the rows that carry shape information and their bins."""
     mean = v.mean(axis=-1)
     mmax = np.where(valid, mean, -np.inf).max(axis=-1, keepdims=True)
     keep = (valid & (mean > _MIN_RELATIVE * mmax) & (wo[..., 2] > 1e-3) & (wi[..., 2] > 1e-3)
@@ -57,38 +59,9 @@ def _theta_d_bins(wo, wi, v, valid):
 
 
 def curve_readable(wo, wi, values, valid):
-    """Which of a stack of tables ``(B, N, ...)`` hold enough rows to read a Fresnel curve from
-    (:func:`conductor_guess` returns None for the others), computed for all at once.
-
-    Parameters
-    ----------
-    wo, wi : ndarray (B, N, 3)
-        The rows' directions.
-    values : ndarray (B, N, C)
-        Measured ``f``.
-    valid : ndarray of bool (B, N)
-        The rows to read.
-
-    Returns
-    -------
-    ndarray of bool (B,)
-        True where at least ``_MIN_BINS`` theta_d bins hold ``_MIN_ROWS_PER_BIN`` rows that
-        carry shape information (valid, both directions above the surface, every channel
-        positive, channel mean above ``_MIN_RELATIVE`` times the brightest row's).
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from data_synth import geometry
-    >>> from matfit.fitting._conductor_guess import curve_readable
-    >>> wo, wi, ok, _ = geometry.merl_grid(8, 8, 16)
-    >>> wo, wi = wo[ok][None], wi[ok][None]
-    >>> v = np.ones(wo.shape[:2] + (3,))
-    >>> a = curve_readable(wo, wi, v, np.ones(wo.shape[:2], bool))
-    >>> b = curve_readable(wo[:, :20], wi[:, :20], v[:, :20], np.ones((1, 20), bool))
-    >>> a.tolist(), b.tolist()
-    ([True], [False])
-    """
+    """Which of a stack of tables (``wo, wi`` (B, N, 3), ``values`` (B, N, C), ``valid`` (B, N))
+    hold enough rows to read a Fresnel curve from, all at once: (B,) bool (:func:`conductor_guess`
+    returns None for the others)."""
     keep, _, _, bins = _theta_d_bins(wo, wi, values, valid)
     B = keep.shape[0]
     counts = np.zeros((B, _N_BINS), int)
@@ -120,43 +93,13 @@ def _width_scores(wo, wi, h, alphas, mean, bins, distribution):
 
 def conductor_guess(wo, wi, values, alpha0, distribution="ggx", eta_range=METAL_ETA_RANGE, k_range=METAL_K_RANGE,
                     valid=None):
-    """Starting ``alpha`` (scalar) and per-channel ``eta``, ``k`` for a rough conductor table.
+    """Starting ``(alpha, eta (C,), k (C,))`` for a rough conductor table, or None when it is too
+    sparse to read a Fresnel curve from.
 
-    Parameters
-    ----------
-    wo, wi : ndarray (N, 3)
-        Valid rows' directions (both above the surface).
-    values : ndarray (N, C)
-        Measured ``f`` of those rows. Tables of more than ``_MAX_ROWS`` rows are read from a
-        fixed random subset of that many.
-    alpha0 : float
-        A first width estimate (from the lobe's half width); the search spans 0.4x to 2.5x of it.
-    distribution : {"ggx", "beckmann"}
-    eta_range, k_range : tuple of float
-        Bounds of the grid search (the fit's parameter bounds).
-    valid : ndarray of bool (N,), optional
-        The rows to read (default: all); the others are ignored.
-
-    Returns
-    -------
-    (alpha, eta, k) : float, ndarray (C,), ndarray (C,)
-        or None when the table is too sparse to read a Fresnel curve from (fewer than
-        ``_MIN_BINS`` theta_d bins with ``_MIN_ROWS_PER_BIN`` rows each).
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from data_synth import geometry
-    >>> from data_synth.synth import evaluate
-    >>> from matfit.models import RoughConductor
-    >>> from matfit.fitting._conductor_guess import conductor_guess
-    >>> wo, wi, ok, _ = geometry.merl_grid(16, 16, 32)
-    >>> wo, wi = wo[ok], wi[ok]
-    >>> f = evaluate(RoughConductor(0.2, [0.3, 1.2, 2.5], [3.0, 5.0, 2.0]), wo, wi)  # model.eval, jitted
-    >>> a, eta, k = conductor_guess(wo, wi, f, alpha0=0.3)
-    >>> bool(abs(a - 0.2) < 0.01), bool(np.all(abs(eta / [0.3, 1.2, 2.5] - 1) < 0.25))
-    (True, True)
-    """
+    ``wo, wi`` (N, 3) and ``values`` (N, C) are the rows (``valid`` (N,) selects some; tables of more
+    than ``_MAX_ROWS`` rows are read from a fixed random subset); ``alpha0`` is the half-width
+    estimate; ``distribution`` is ``"ggx"`` or ``"beckmann"``; ``eta_range``, ``k_range`` bound the
+grid search (the fit's bounds)."""
     wo = np.asarray(wo, float)
     v = np.asarray(values, float).reshape(len(wo), -1)
     rows = np.arange(len(wo)) if valid is None else np.flatnonzero(valid)
@@ -203,26 +146,9 @@ def conductor_guess(wo, wi, values, alpha0, distribution="ggx", eta_range=METAL_
 
 
 def refine_conductor(distribution):
-    """The :attr:`~matfit.fitting.Family.refine` hook of the rough conductor families: width, eta
-    and k per table read off its Fresnel curve (:func:`conductor_guess`) where the table allows.
-
-    Parameters
-    ----------
-    distribution : str
-        The family's microfacet distribution (``"ggx"``, ``"beckmann"``).
-
-    Returns
-    -------
-    callable
-        ``refine(WO, WI, V, M, guess, family)``: updates ``guess["alpha"]``, ``guess["eta"]`` and
-        ``guess["k"]`` in place (arrays with a leading table axis).
-
-    Examples
-    --------
-    >>> from matfit.fitting import get_family
-    >>> get_family("conductor").refine is not None
-    True
-    """
+    """The :attr:`~matfit.fitting.Family.refine` hook of the rough conductor families for
+    ``distribution``: ``refine(WO, WI, V, M, guess, family)`` sets ``guess["alpha"]``, ``["eta"]``,
+    ``["k"]`` in place per table from :func:`conductor_guess` where the table allows."""
 
     def refine(WO, WI, V, M, guess, family):
         # eta = 1 and the half-width alpha start in the basin of a bound (eta -> 8, k -> 0) for

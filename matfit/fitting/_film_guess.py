@@ -66,34 +66,10 @@ def _colour_table():
 
 
 def film_candidates(th_h, cos_d, V, ok, n=3):
-    """The ``n`` best film candidates of every table, best first.
-
-    Parameters
-    ----------
-    th_h : numpy.ndarray (B, N)
-        Half angles of the rows (degrees).
-    cos_d : numpy.ndarray (B, N)
-        Cosines of the difference angles.
-    V : numpy.ndarray (B, N, 3)
-        Values (RGB).
-    ok : numpy.ndarray of bool (B, N)
-        Rows to read.
-    n : int
-        How many candidates.
-
-    Returns
-    -------
-    list of dict
-        ``n`` dicts ``{"thickness": (B,), "film_eta": (B,), "eta": (B,)}``, the best candidate of
-        every table first.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit.fitting._film_guess import film_candidates
-    >>> c = film_candidates(np.zeros((1, 4)), np.ones((1, 4)), np.ones((1, 4, 3)), np.ones((1, 4), bool), n=2)
-    >>> len(c), c[0]["thickness"].shape
-    (2, (1,))
+    """The ``n`` best film candidates of every table, best first: ``n`` dicts ``{"thickness",
+    "film_eta", "eta"}`` of (B,) arrays, read from the rows ``ok`` of half angles ``th_h``
+    (degrees), difference-angle cosines ``cos_d`` (B, N) and RGB values ``V`` (B, N, 3); a table
+    without a highlight to read gets :data:`FILM_GENERIC`.
     """
     table, d_all, n_all, nb_all = _colour_table()
     B = V.shape[0]

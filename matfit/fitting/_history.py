@@ -23,18 +23,17 @@ def loss_history(table, family, loss="l2", method="lm", starts=4, seed=0, max_st
                  robust=None, robust_scale=1.0, fixed=None, tied=(), init=None, dtype=None):
     """Per-iteration objective of every start of a :func:`matfit.fitting.fit` call.
 
-    ``fit`` solves all starts in one compiled, vectorized call and keeps only where each start
-    ended. This re-runs the same optimistix solver (same family, loss, starting points, tolerances
-    and step limit as ``fit`` with these arguments) one start at a time with a ``verbose``
-    callback that records, at every solver step, the objective ``0.5 * sum(r**2)`` at the last
-    accepted iterate (so each curve is non-increasing; a rejected Levenberg-Marquardt trial step
-    repeats the previous value). The last value of each curve is that start's final objective.
+    Re-runs the same optimistix solver (same family, loss, starting points, tolerances and step
+    limit as ``fit`` with these arguments) one start at a time with a ``verbose`` callback that
+    records, at every solver step, ``0.5 * sum(r**2)`` at the last accepted iterate: each curve is
+    non-increasing (a rejected Levenberg-Marquardt trial step repeats the previous value) and ends
+    at that start's final objective.
 
     Parameters
     ----------
     table : matfit.Table
-    family, loss, method, starts, seed, max_steps, rtol, atol, robust, robust_scale, fixed, tied, init, dtype :
-        as for :func:`matfit.fitting.fit` (``method`` one of ``"lm"``, ``"gn"``, ``"dogleg"``).
+    family, loss, method, starts, seed, max_steps, rtol, atol, robust, robust_scale, fixed, tied, init, dtype
+        As for :func:`matfit.fitting.fit` (``method`` one of ``"lm"``, ``"gn"``, ``"dogleg"``).
 
     Returns
     -------

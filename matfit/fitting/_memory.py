@@ -39,12 +39,9 @@ def memory_estimate(rows, channels, groups, dtype=None):
 
     Parameters
     ----------
-    rows : int
-        Rows with a nonzero weight.
-    channels : int
-        Colour channels.
-    groups : int
-        Column groups of the Jacobian (parameter names; :func:`~matfit.fitting.lm.column_groups`).
+    rows, channels, groups : int
+        Rows with a nonzero weight, colour channels, column groups of the Jacobian (parameter
+        names; :func:`~matfit.fitting.lm.column_groups`).
     dtype : dtype, optional
         The fit's floating type (default: JAX's default float).
 

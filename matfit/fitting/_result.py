@@ -48,10 +48,8 @@ class FitResult:
         Free parameter values and their Gauss-Newton standard errors.
     cov, corr : numpy.ndarray (p, p)
         Covariance and correlation of the free parameters.
-    objective : float
-        ``0.5 * sum`` of squared residuals at the optimum.
-    rss : float
-        Residual sum of squares.
+    objective, rss : float
+        ``0.5 * sum`` of squared residuals at the optimum, and the residual sum of squares.
     n_residuals, dof : int
         Number of residuals used, and ``n - p``.
     steps : int
@@ -124,22 +122,8 @@ class FitResult:
         return bool(self.converged) and not self.warnings
 
     def summary(self) -> str:
-        """A few lines: family, method, loss, objective, steps, convergence and wall time, then
-        every free parameter with its standard error, the warnings and the notes.
-
-        Returns
-        -------
-        str
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from matfit import Table
-        >>> from matfit.fitting import fit
-        >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
-        >>> r = fit(Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1)), model="lambert", starts=1)
-        >>> r.summary().splitlines()[0].startswith("lambert fit (lm_fd, l2): objective")
-        True
+        """A few lines: family, method, loss, objective, steps, convergence and wall time, then every
+        free parameter with its standard error, the warnings and the notes.
         """
         lines = [f"{self.family} fit ({self.method}, {self.loss}): objective {self.objective:.6g}, "
                  f"{self.steps} steps, converged={self.converged}, {self.wall_time:.2f} s"]

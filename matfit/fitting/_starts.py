@@ -3,6 +3,16 @@ family itself knows), the screened extra starts (among them the widths of the di
 normals extracted from the table's retro-reflection, Dupuy et al. 2015), and the jitted helpers
 that map starts to and from the unconstrained space.
 
+The generic guess: the floor is the 10th percentile of each channel over the valid rows (times
+pi: a Lambertian albedo); the peak is the row of largest ``f cos(theta_i)``; the width is the
+largest half-vector angle among rows above half the peak's excess over the floor, as a GGX alpha
+(``D(theta_h)/D(0) = 1/2  <=>  tan(theta_h) = alpha sqrt(sqrt(2) - 1)``); the peak's reflectance
+is its excess times ``4 pi alpha^2 cos^2`` (``f ~ F / (4 pi alpha^2 cos^2)`` at ``theta_h ~ 0``).
+A family then adds its constant starts and its ``refine`` hook (:class:`~matfit.fitting.Family`;
+the rough conductors refine the width from the lobe's shape and read ``eta``, ``k`` per channel
+off the Fresnel curve). Every guess is clipped strictly inside its bounds (the bijection
+saturates at a bound); a parameter without a guess starts mid-range.
+
 References
 ----------
 - J. Dupuy, E. Heitz, J.-C. Iehl, P. Poulin, V. Ostromoukhov, "Extracting Microfacet-based BRDF
@@ -36,22 +46,13 @@ WIDTH_ENTRIES = ("alpha", "alpha_base", "alpha_coat")
 
 
 def initial_guess(table: Table, par: Parametrization):
-    """Data-driven starting values: diffuse floor, specular peak height and width.
-
-    The floor is the 10th percentile of the valid values (times pi: a Lambertian albedo); the
-    peak is the row of largest ``f cos(theta_i)``; the width is the largest half-vector angle
-    among rows above half the peak's excess over the floor, turned into a GGX alpha through
-    ``D(theta_h)/D(0) = 1/2  <=>  tan(theta_h) = alpha * sqrt(sqrt(2) - 1)``. For the rough
-    conductor families the width is then refined from the lobe's shape and ``eta``, ``k`` per
-    channel come from the Fresnel curve read off the table
-    (the family's ``refine`` hook, :class:`~matfit.fitting.Family`).
+    """Data-driven starting values: diffuse floor, specular peak height and width (the rules are in
+    the module docstring).
 
     Parameters
     ----------
-    table : matfit.Table
-        The table (at least one valid row).
-    par : Parametrization
-        The family, channels and fixed parameters.
+    table, par : matfit.Table, Parametrization
+        The table (at least one valid row); the family, channels and fixed parameters.
 
     Returns
     -------
@@ -65,7 +66,7 @@ def initial_guess(table: Table, par: Parametrization):
     >>> from matfit.fitting import Parametrization, initial_guess
     >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]]); wi = wo[::-1].copy()
     >>> g = initial_guess(Table(wo=wo, wi=wi, values=np.full((2, 3), 0.2)), Parametrization("lambert", 3))
-    >>> np.round(g["albedo"], 3).tolist()
+    >>> np.round(g["albedo"], 3).tolist()  # pi * the floor
     [0.628, 0.628, 0.628]
     """
     return {k: v[0] for k, v in initial_guesses([table], par).items()}
@@ -86,32 +87,20 @@ def percentile10(v, valid):
 
 
 def initial_guesses(tables, par: Parametrization, widths=None):
-    """:func:`initial_guess` for many tables of one shape at once (vectorized over the tables;
-    a texel map's guesses are a few array operations, not a loop over the texels).
+    """:func:`initial_guess` for many tables of one shape at once (vectorized: a texel map's guesses
+    are a few array operations, not a loop over the texels).
 
     Parameters
     ----------
     tables : sequence of matfit.Table
         Tables of one shape (rows and channels).
-    par : Parametrization
-        The family, channels and fixed parameters.
-    widths : mapping, optional
-        Microfacet widths replacing the generic half-width ones (see :func:`guesses_from_arrays`).
+    par, widths
+        As for :func:`guesses_from_arrays`.
 
     Returns
     -------
     dict
         Parameter name -> array with a leading table axis ``(B,)`` or ``(B, C)``.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit import Table
-    >>> from matfit.fitting import Parametrization, initial_guesses
-    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]]); wi = wo[::-1].copy()
-    >>> tables = [Table(wo=wo, wi=wi, values=np.full((2, 3), a)) for a in (0.1, 0.2)]
-    >>> initial_guesses(tables, Parametrization("lambert", 3))["albedo"].shape
-    (2, 3)
     """
     WO, WI, V, M = _stacked(tables)
     return guesses_from_arrays(WO, WI, V, M, par, one=len(tables) == 1, widths=widths)
@@ -128,39 +117,9 @@ def _stacked(tables):
 
 
 def table_features(WO, WI, V, M, one=False):
-    """What :func:`guesses_from_arrays` reads off a stack of tables before any family's own
-    starts: the diffuse floor, the generic width and the peak's reflectance.
-
-    The floor is the 10th percentile of each channel over the valid rows; the width is the
-    largest half-vector angle among the rows above half the peak's excess over the floor, as a
-    GGX alpha (``tan(theta_h) = alpha sqrt(sqrt(2) - 1)``); the reflectance is the peak's excess
-    times ``4 pi alpha^2 cos^2`` (``f ~ F / (4 pi alpha^2 cos^2)`` at ``theta_h ~ 0``).
-
-    Parameters
-    ----------
-    WO, WI, V, M : numpy.ndarray
-        As :func:`guesses_from_arrays` takes them.
-    one : bool, default False
-        The stack is a single table (for the error message).
-
-    Returns
-    -------
-    dict
-        ``floor`` (B, C), ``alpha`` (B,), ``r0`` (B, C).
-
-    Raises
-    ------
-    FitError
-        When a table has no valid row.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit.fitting._starts import table_features
-    >>> wo = np.broadcast_to([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]], (1, 2, 3)); wi = wo[:, ::-1]
-    >>> sorted(table_features(wo, wi, np.full((1, 2, 3), 0.1), np.ones((1, 2), bool)))
-    ['alpha', 'floor', 'r0']
-    """
+    """What :func:`guesses_from_arrays` reads off a stack of tables before any family's own starts
+    (module docstring): ``{"floor": (B, C), "alpha": (B,), "r0": (B, C)}``. ``one``: a single
+    table, for the error message. Raises FitError when a table has no valid row."""
     V = np.asarray(V, float)
     empty = np.flatnonzero(~M.any(axis=1))
     if empty.size:
@@ -184,29 +143,26 @@ def table_features(WO, WI, V, M, one=False):
 
 
 def guesses_from_arrays(WO, WI, V, M, par: Parametrization, one=False, widths=None, features=None):
-    """:func:`initial_guesses` of a stack of tables given as arrays: directions ``WO``, ``WI``
-    ``(B, N, 3)`` (broadcast views are fine: directions shared by every table cost no copy),
-    values ``V`` ``(B, N, C)`` and the valid rows ``M`` ``(B, N)``.
+    """:func:`initial_guesses` of a stack of tables given as arrays.
 
     Parameters
     ----------
     WO, WI : numpy.ndarray (B, N, 3)
-        Directions to the viewer and to the light.
-    V : numpy.ndarray (B, N, C)
-        Values.
-    M : numpy.ndarray of bool (B, N)
-        Rows that may seed the guess.
+        Directions to the viewer and to the light (broadcast views are fine: shared directions
+        cost no copy).
+    V, M : numpy.ndarray (B, N, C) and bool (B, N)
+        Values; rows that may seed the guess.
     par : Parametrization
         The family, channels and fixed parameters.
     one : bool, default False
         The stack is a single table (its error messages say "the table").
     widths : mapping, optional
-        Entries of :data:`WIDTH_ENTRIES` (scalar or ``(B,)``) replacing the generic widths read off
-        the peak's half width, before the family's constant starts and its refinement (which
-        then starts from them): e.g. :func:`ndf_widths`.
+        Entries of :data:`WIDTH_ENTRIES` (scalar or ``(B,)``) replacing the generic widths, before
+        the family's constant starts and its refinement (which then starts from them): e.g.
+        :func:`ndf_widths`.
     features : dict, optional
-        :func:`table_features` of these arrays, when already computed (a second guess of the
-        same table, with other widths, then costs only the family's refinement).
+        :func:`table_features` of these arrays, when already computed (a second guess of the same
+        table, with other widths, then costs only the family's refinement).
 
     Returns
     -------
@@ -219,15 +175,6 @@ def guesses_from_arrays(WO, WI, V, M, par: Parametrization, one=False, widths=No
         When a table has no valid row.
     ParameterError
         For a ``widths`` entry that is not one of :data:`WIDTH_ENTRIES`.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit.fitting import Parametrization, guesses_from_arrays
-    >>> wo = np.broadcast_to([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]], (4, 2, 3)); wi = wo[:, ::-1]
-    >>> g = guesses_from_arrays(wo, wi, np.full((4, 2, 3), 0.1), np.ones((4, 2), bool), Parametrization("lambert", 3))
-    >>> g["albedo"].shape
-    (4, 3)
     """
     V = np.asarray(V, float)
     f = table_features(WO, WI, V, M, one) if features is None else features
@@ -291,39 +238,16 @@ def candidates(par, base, n_extra, seed, extra=None):
 
 
 def ndf_widths(table, diffuse=0.0):
-    """Microfacet widths from the distribution of normals extracted off the table's
-    retro-reflection (:func:`~matfit.microfacet.ndf_start`, Dupuy et al. 2015), as entries of
-    :data:`WIDTH_ENTRIES`, or None when the table cannot give them.
+    """Microfacet widths (entries of :data:`WIDTH_ENTRIES`, floats) from the distribution of normals
+    extracted off the table's retro-reflection (:func:`~matfit.microfacet.ndf_start`, Dupuy et al.
+    2015), after subtracting a ``diffuse`` floor (1/sr); None for a table without enough rows near
+    backscattering or nothing above the floor there.
 
-    ``alpha`` is the GGX width of least misfit, ``alpha_base`` = ``alpha_coat`` = ``alpha``;
-    where the extraction suggests two lobes, ``alpha`` and ``alpha_coat`` are the narrow lobe's
-    width (the peak, which dominates a least-squares fit; a clear coat over a rougher layer) and
+    ``alpha`` is the GGX width of least misfit and ``alpha_base`` = ``alpha_coat`` = ``alpha``;
+    where the extraction suggests two lobes, ``alpha`` and ``alpha_coat`` are the narrow lobe's width
+    (the peak, which dominates a least-squares fit; a clear coat over a rougher layer) and
     ``alpha_base`` the wide one's. Only the rows near backscattering are read (a few percent of a
-    MERL table, selected by one dot product per row).
-
-    Parameters
-    ----------
-    table : matfit.Table
-        The table.
-    diffuse : float or array_like (C,), optional
-        A diffuse floor (1/sr) subtracted first (default 0; :func:`fit_starts` passes the
-        guess's albedo / pi for a family with one).
-
-    Returns
-    -------
-    dict or None
-        ``{"alpha", "alpha_base", "alpha_coat"}`` (floats), or None for a table without enough
-        rows near backscattering (or nothing above the floor there).
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit import Table
-    >>> from matfit.fitting._starts import ndf_widths
-    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]]); wi = wo[::-1].copy()
-    >>> print(ndf_widths(Table(wo=wo, wi=wi, values=np.full((2, 3), 0.2))))  # no retro-reflection rows
-    None
-    """
+    MERL table, one dot product per row)."""
     try:
         # a start needs no 1e-6 fixed point: fewer iterations bound the cost on noisy tables
         s = ndf_start(table, diffuse=diffuse, max_iter=30, tol=1e-5)
@@ -337,23 +261,18 @@ def ndf_widths(table, diffuse=0.0):
 
 
 def fit_starts(table, par, n, seed, objective, arrays, init=None):
-    """The ``n`` starts that :func:`~matfit.fitting.fit` runs: the data-driven guess (with
-    ``init``'s values replacing its entries), then the best screened candidates
-    (:func:`screened_starts`). With ``n > 1`` and :data:`NDF_CANDIDATE`, one candidate is the
-    data-driven guess again with the widths of :func:`ndf_widths` (and ``init``), where the table
-    gives them and the family reads them (the start differs from the first): one more candidate,
-    screened like the others.
+    """The ``n`` starts that :func:`~matfit.fitting.fit` runs: the data-driven guess (``init``'s
+    values replacing its entries), then the best screened candidates (:func:`screened_starts`).
+    With ``n > 1`` and :data:`NDF_CANDIDATE`, one more candidate, screened like the others, is the
+    guess with the widths of :func:`ndf_widths`, where the table gives them, the family reads them
+    and the start differs from the first.
 
     Parameters
     ----------
-    table : matfit.Table
-        The table.
-    par : Parametrization
-        The family, channels and fixed parameters.
-    n : int
-        Number of starts.
-    seed : int
-        Seed of the candidates.
+    table, par : matfit.Table, Parametrization
+        The table; the family, channels and fixed parameters.
+    n, seed : int
+        Number of starts; seed of the candidates.
     objective : callable
         ``objective(zs, arrays)``: the fit's objective for a stack of ``z``.
     arrays : tuple
@@ -365,19 +284,6 @@ def fit_starts(table, par, n, seed, objective, arrays, init=None):
     -------
     jax.Array (n, p)
         Unconstrained starts, the data-driven one first.
-
-    Examples
-    --------
-    >>> import jax, numpy as np
-    >>> from matfit import Table
-    >>> from matfit.fitting import Parametrization
-    >>> from matfit.fitting.fit import fit_starts
-    >>> from matfit.fitting._residuals import objective_fn, prepared_residual_fn, table_arrays
-    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
-    >>> t = Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1)); par = Parametrization("lambert", 3)
-    >>> obj = jax.jit(objective_fn(*prepared_residual_fn(par, "l2", None, 1.0)))
-    >>> fit_starts(t, par, 3, 0, obj, table_arrays(t, None)).shape
-    (3, 3)
     """
     # the table's arrays and features once: the ndf candidate below is a second guess of them
     arrays_np = _stacked([table])

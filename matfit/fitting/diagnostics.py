@@ -17,21 +17,25 @@ at a bound             a parameter ended within :data:`BOUND_TOL` (relative to i
                        for none or all of a term; a range limit (a width of 1e-3, a metal
                        index of 8) says the best fit may lie beyond the family's range.
 outliers               residuals beyond :data:`OUTLIER_Z` robust standard deviations
-                       (1.4826 MAD) on more rows than Gaussian noise explains: try
-                       ``robust="huber"``/``"cauchy"`` or mask the rows. The noise is first
-                       classed as additive, proportional to the value, or proportional over
-                       an additive floor (:data:`NOISE_FLOORS`; the model whose standardized
-                       residuals have the lighter tail beyond 3 robust standard deviations),
-                       and the residuals are standardized by it: noise of a few per cent of
-                       the value is not a set of outliers. Fitted without
-                       sigma, a small value's residual also carries the fitted curve's own
-                       uncertainty there (the peak's noise moves it), and the proportional
-                       scale includes it.
+                       (1.4826 MAD) under the noise model below, on more rows than Gaussian
+                       noise explains (``> max(2, 1e-4 n)``; ``P(|z| > 6) ~ 2e-9``): try
+                       ``robust="huber"``/``"cauchy"`` or mask the rows.
 poor fit               with the table's own sigma: reduced :math:`\chi^2` above
                        :data:`CHI2_MAX`.
 multiple optima        another start reached an objective within 0.1 % of the best at
                        parameters more than 5 standard errors away.
 =====================  =======================================================================
+
+The outlier test's noise model, so that noise of a few per cent of the value is not a set of
+outliers: additive (one scale), or proportional to the value :math:`y_i` (in the residuals'
+space) with an additive floor :math:`\lambda m` (``m`` the median, :math:`\lambda` in
+:data:`NOISE_FLOORS`, 0: purely proportional), :math:`s_i = \sqrt{y_i^2 + \lambda^2 m^2}`
+(dark noise under a noise that grows with the signal); the model whose standardized residuals
+have the lighter tail beyond 3 robust standard deviations is used. Fitted without sigma, the noise of
+the peak moves the fitted curve by more than the small values' own noise: with each fitted
+value's variance :math:`v_i` (from the parameters' covariance) the scale is
+:math:`\sqrt{s_i^2 + v_i / c^2}`, ``c`` the residuals' spread relative to :math:`s`. A residual
+spread below ``1e-7`` of the data's scale is an exact fit (no test on rounding noise).
 
 References
 ----------
@@ -61,17 +65,8 @@ CHI2_MAX = 3.0
 
 
 def _standardized(r, scale, data_scale, fit_var=None):
-    r"""``(|z|, kind)``: the residuals over a robust noise scale, whichever of the noise models
-    :data:`NOISE_FLOORS` leaves the lighter tail beyond 3 (None when the spread is rounding).
-
-    The models are additive (one scale for every residual) and proportional to ``scale`` with an
-    additive floor :math:`\lambda m` (``m`` the median of ``scale``; :math:`\lambda` = 0 is
-    purely proportional): :math:`s_i = \sqrt{\mathrm{scale}_i^2 + \lambda^2 m^2}`, a detector's
-    dark noise under a noise that grows with the signal. With ``fit_var`` (each fitted value's
-    variance from the parameters' covariance) the scale becomes :math:`\sqrt{s_i^2 + v_i / c^2}`,
-    ``c`` the residuals' spread relative to :math:`s`: where a fit weighted every residual alike
-    (no sigma), the noise of the peak moves the fitted curve by more than the small values' own
-    noise, and their residuals follow it."""
+    """``(|z|, kind)``: the residuals over the robust noise scale of the lightest-tailed noise model
+    (module docstring); ``(None, kind)`` when the spread is rounding."""
     best = None
     models = [("additive noise", None)]  # the residuals as they are: no array of ones to divide by
     if scale is not None:
@@ -107,22 +102,20 @@ def _robust_sd(x):
 def identifiability(Jt, labels, lower, upper, gram=None):
     """Unidentified parameters from the Jacobian in natural parameters.
 
-    The eigenvalues of the scaled :math:`J^T J` are the squared singular values of the scaled
-    Jacobian; they are taken from the (p, p) Gram matrix (float64 eigenvalues resolve relative
-    sizes far below :data:`IDENT_RCOND`), so a table of millions of rows costs no SVD.
+    The eigenvalues of the scaled :math:`J^T J` (the squared singular values of the scaled
+    Jacobian) come from the (p, p) Gram matrix in float64, which resolves relative sizes far below
+    :data:`IDENT_RCOND`: a table of millions of rows costs no SVD.
 
     Parameters
     ----------
     Jt : array_like (n, p) or None
-        Jacobian of the residuals with respect to the natural parameters, or None when ``gram``
-        is given instead.
+        Jacobian of the residuals in the natural parameters (None when ``gram`` is given).
     labels : sequence of str (p,)
         Parameter names.
     lower, upper : ndarray (p,)
-        Bounds (``inf`` upper: unbounded above); each parameter is scaled to its bound width
-        (to 1 where unbounded).
+        Bounds (``inf`` upper: unbounded); each parameter is scaled to its bound width (1 if none).
     gram : array_like (p, p), optional
-        :math:`J^T J`, used instead of ``Jt`` when given.
+        :math:`J^T J`, used instead of ``Jt``.
 
     Returns
     -------
@@ -136,8 +129,6 @@ def identifiability(Jt, labels, lower, upper, gram=None):
     >>> J = np.array([[1.0, 1.0], [2.0, 2.0], [3.0, 3.0]])   # only a + b is seen
     >>> identifiability(J, ["a", "b"], np.zeros(2), np.ones(2))
     ['a', 'b']
-    >>> identifiability(np.eye(2), ["a", "b"], np.zeros(2), np.ones(2))
-    []
     """
     span = np.where(np.isfinite(upper), upper - lower, 1.0)
     if gram is None:
@@ -176,61 +167,41 @@ def _median_of_copy(a):
 def diagnose(*, labels, values, stderr, lower, upper, residuals, converged, steps, max_steps, known_sigma,
              dof, Jt=None, gram=None, data_scale=0.0, start_values=None, start_objectives=None, best=0,
              start_reference=None, start_stderr=None, scale=None, physical=None, fit_var=None):
-    """Warnings (list of str) about a fit's optimum; see the module docstring for each check.
-
-    All arguments are keywords.
+    """Warnings about a fit's optimum (each check: the module docstring). Keywords only.
 
     Parameters
     ----------
     labels : sequence of str (p,)
         Parameter names.
-    values, stderr : ndarray (p,)
-        The optimum and its standard errors, in natural parameters.
-    lower, upper : ndarray (p,)
-        Bounds (``inf`` upper: unbounded above).
+    values, stderr, lower, upper : ndarray (p,)
+        The optimum, its standard errors and the bounds, in natural parameters.
     residuals : array_like
-        The residuals at the optimum; exact zeros (unused entries) are left out of the outlier
-        and chi-square checks.
-    converged : bool
-        Whether the solver met its tolerances.
+        The residuals at the optimum; exact zeros (unused entries) are left out of the outlier and
+        chi-square checks.
+    converged, known_sigma : bool
+        The solver met its tolerances; the residuals are in units of the table's own sigma
+        (enables the chi-square check).
     steps, max_steps : int
-        Steps taken and the cap: ``steps >= max_steps`` is reported as the reason of a
-        non-converged fit.
-    known_sigma : bool
-        The residuals are in units of the table's own sigma (enables the chi-square check).
+        Steps taken and the cap (``steps >= max_steps``: the reason given for not converging).
     dof : int
         Degrees of freedom of the chi-square check (residuals minus free parameters).
-    Jt : array_like (n, p), optional
-        The Jacobian in natural parameters; or give its Gram matrix ``gram`` (p, p) instead
-        (see :func:`identifiability`).
-    gram : array_like (p, p), optional
-        :math:`J^T J`.
+    Jt, gram : array_like, optional
+        The Jacobian in natural parameters or its Gram matrix (:func:`identifiability`).
     data_scale : float, default 0.0
-        The root mean square of the weighted data: residual spreads below
-        ``1e-7 * data_scale`` count as an exact fit (no outlier test on rounding noise).
-    start_values : array_like (starts, p), optional
-        What each start reached.
-    start_objectives : array_like (starts,), optional
-        The objective each start reached.
-    best : int, default 0
-        Index of the best start.
-    physical : array_like (p, 2) of bool, optional
-        Whether each parameter's lower and upper bound is a physical limit
-        (:meth:`~matfit.fitting.Parametrization.physical_bounds`); default: every bound is a
-        range limit.
+        The root mean square of the weighted data (the exact-fit threshold).
+    start_values, start_objectives : array_like (starts, p), (starts,), optional
+        What each start reached and its objective; ``best`` (default 0) indexes the best start.
+    start_reference, start_stderr : ndarray (p,), optional
+        Where and at which standard errors the starts are compared (default ``values``,
+        ``stderr``; a large table's starts are compared where they ended on its subset).
     scale : array_like, optional
         The measured values in the residuals' space and layout (the loss's target times the
-        square root of the weight): the scale of noise proportional to the value. Without it
-        the noise is taken as additive.
+        square root of the weight), for proportional noise; without it the noise is additive.
+    physical : array_like (p, 2) of bool, optional
+        Whether each lower/upper bound is a physical limit
+        (:meth:`~matfit.fitting.Parametrization.physical_bounds`); default: range limits.
     fit_var : array_like, optional
-        The variance of each fitted value (in the residuals' layout) from the parameters'
-        covariance: widens the proportional noise scale where the fit's own uncertainty exceeds
-        the value's noise (small values beside a peak, fitted without sigma).
-    start_reference, start_stderr : ndarray (p,), optional
-        Where and at which standard errors the starts are compared (default: ``values`` and
-        ``stderr``). A large table's starts are compared where they ended on its subset
-        (``fit`` then passes the best start's subset solution and the subset's standard
-        errors).
+        Each fitted value's variance (residuals' layout) from the parameters' covariance.
 
     Returns
     -------
@@ -238,17 +209,6 @@ def diagnose(*, labels, values, stderr, lower, upper, residuals, converged, step
         One plain-language warning per finding.
     unidentified : list of str
         The labels whose standard errors should be reported as ``inf``.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit.fitting.diagnostics import diagnose
-    >>> warnings, unident = diagnose(labels=["alpha"], values=np.array([1e-6]), stderr=np.array([0.01]),
-    ...                              lower=np.zeros(1), upper=np.ones(1), residuals=np.full(10, 0.1),
-    ...                              converged=True, steps=5, max_steps=256, known_sigma=False, dof=9,
-    ...                              Jt=np.ones((10, 1)))
-    >>> [w.split(":")[0] for w in warnings], unident
-    (['at a bound'], [])
     """
     out = []
     if not converged:

@@ -1,15 +1,14 @@
 """Gradient fitting of a model family to a table: problem -> solver -> uncertainty.
 
 :func:`fit` builds the problem (the family's parametrization, the loss's residuals, the table's
-arrays), takes the compiled solver of its configuration (:mod:`._solver`, a registered method of
+arrays), takes the compiled solver of its configuration (:mod:`._solver`, a method of
 :data:`~matfit.fitting.methods.METHODS`), starts it from the data-driven guess and the screened
-starts (:mod:`._starts`), and turns the solution into a :class:`FitResult` with Gauss-Newton
-uncertainties and diagnostics. :func:`fit_arrays` (and :func:`fit_batch` over it) does the same
-for a stack of small tables in one vectorized call.
+starts (:mod:`._starts`), and turns the solution into a :class:`FitResult` with Gauss-Newton or
+sandwich uncertainties (:func:`covariance`) and diagnostics. :func:`fit_arrays` (and
+:func:`fit_batch` over it) does the same for a stack of small tables in one vectorized call.
 
 The table's directions are fixed during a fit; the solver is compiled once per (family,
-channels, method, loss, table shape) and reused for every table of the same shape and every
-start.
+channels, method, loss, table shape) and reused for every table of that shape and every start.
 """
 
 from __future__ import annotations
@@ -74,28 +73,24 @@ LEVERAGE_MAX = 0.9
 def covariance(gram, rss, dof, known_sigma, jac=None, res=None):
     r"""The covariance of least-squares parameters, in the parameters of ``gram`` and ``jac``.
 
-    With the data's own sigma, :math:`(J^T J)^{-1}`. Without it, and given the Jacobian and the
-    residuals, the sandwich (HC3, MacKinnon & White 1985) :math:`B\, J^T \mathrm{diag}(u^2) J\, B`
-    with :math:`B = (J^T J)^{-1}` and :math:`u_i = r_i / (1 - h_i)`, :math:`h_i = J_i B J_i^T`
-    (each row's leverage, capped at :data:`LEVERAGE_MAX`): right whether the noise is the same on
-    every residual or grows with the value (a measurement's typical noise), where
-    :math:`\hat\sigma^2 B` (:math:`\hat\sigma^2` = ``rss / dof``, used without ``jac``) is off
-    by the ratio of the peak's noise to the mean (4-8x on 1 % multiplicative noise).
+    With the data's own sigma, :math:`B = (J^T J)^{-1}`. Without it, and given the Jacobian and the
+    residuals, the sandwich (HC3, MacKinnon & White 1985) :math:`B\, J^T \mathrm{diag}(u^2) J\, B`,
+    :math:`u_i = r_i / (1 - h_i)`, :math:`h_i = J_i B J_i^T` (each row's leverage, capped at
+    :data:`LEVERAGE_MAX`): right whether the noise is the same on every residual or grows with the
+    value, where :math:`\hat\sigma^2 B` (:math:`\hat\sigma^2` = ``rss / dof``, used without ``jac``)
+    is off by the ratio of the peak's noise to the mean (4-8x on 1 % multiplicative noise; coverage
+    in ``docs/fitting.md``).
 
     Parameters
     ----------
     gram : array_like (p, p), or (B, p, p) without ``jac``
         :math:`J^T J`.
-    rss : float, or (B,)
-        The residual sum of squares.
-    dof : int, or (B,)
-        Residuals less parameters.
+    rss, dof : float, int, or (B,)
+        The residual sum of squares; residuals less parameters.
     known_sigma : bool
         The residuals are in units of the data's sigma.
-    jac : array_like (n, p), optional
-        The Jacobian of the residuals.
-    res : array_like (n,), optional
-        The residuals, in the rows of ``jac``.
+    jac, res : array_like (n, p), (n,), optional
+        The Jacobian of the residuals and the residuals.
 
     Returns
     -------
@@ -130,8 +125,8 @@ def _jacobian_program(par, loss):
     the inside of each range (central, ``eps^(1/3)``, in float32), divided by the change of
     ``theta`` it made (a secant: finite at a bound). ``moves`` (p,) bool: where ``d theta / d z``
     is nonzero; a coordinate whose sigmoid is saturated in floating point gets a zero column, as
-    the chain rule gave. It compiles in about half the time of ``jax.jacfwd`` (the model's JVP)
-    and agrees with it to about 1e-7 in float64 inside the ranges (1e-5-1e-4 at a bound)."""
+    the chain rule gave. Faster to compile than ``jax.jacfwd``, and as accurate
+    (``docs/performance.md``)."""
     prepare, fn = prepared_residual_fn(par, loss, None, 1.0)
     seeds, owner = column_groups(par)
     lower, upper = par.lower_upper()
@@ -177,12 +172,6 @@ def refit_line(dof):
     -------
     numpy.ndarray
         ``1 + REFIT_SIGMAS * sqrt(2 / dof)``.
-
-    Examples
-    --------
-    >>> from matfit.fitting import refit_line
-    >>> [round(float(x), 2) for x in refit_line([8, 72])]
-    [3.0, 1.67]
     """
     return 1 + REFIT_SIGMAS * np.sqrt(2 / np.maximum(np.asarray(dof, float), 1))
 
@@ -190,10 +179,9 @@ def refit_line(dof):
 def channel_correlation(r):
     """Mean pairwise correlation over the rows of the residuals of different colour channels.
 
-    Independent noise per channel leaves it near 0 (correct fits of 24 RGB rows without sigma in
-    ``experiments/fit_recovery.py``: above :data:`CHANNEL_RHO_REFIT` in 6 of 2,800); a fit that
-    missed the table's shape (a false minimum) leaves the same misfit in every channel. Rows
-    whose residuals are all zero (masked) are left out.
+    Independent noise per channel leaves it near 0 (figures in ``docs/fitting.md``); a fit that
+    missed the table's shape (a false minimum) leaves the same misfit in every channel. Rows whose
+    residuals are all zero (masked) are left out.
 
     Parameters
     ----------
@@ -203,18 +191,16 @@ def channel_correlation(r):
     Returns
     -------
     float
-        The mean of the ``C (C - 1) / 2`` correlations; NaN for one channel, fewer than 3 rows
-        or a channel without spread.
+        The mean of the ``C (C - 1) / 2`` correlations; NaN for one channel, fewer than 3 rows or a
+        channel without spread.
 
     Examples
     --------
     >>> import numpy as np
     >>> from matfit.fitting import channel_correlation
     >>> shape = np.sin(np.linspace(0, 3, 24))[:, None]
-    >>> round(channel_correlation(shape * [1.0, 2.0, 0.5]), 3)
+    >>> round(channel_correlation(shape * [1.0, 2.0, 0.5]), 3)  # one misfit in every channel
     1.0
-    >>> abs(channel_correlation(np.random.default_rng(0).standard_normal((2000, 3)))) < 0.05
-    True
     """
     r = np.asarray(r, float)
     r = r[np.any(r != 0, axis=1)]
@@ -248,13 +234,6 @@ def noise_level(q, known_sigma, scale=1.0):
     float
         1 with known sigma; else the median of the finite ``q``, floored, over at least
         :data:`REFIT_MIN_BATCH` tables; NaN (no level) for fewer tables or none finite.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit.fitting import noise_level
-    >>> noise_level(np.r_[np.full(15, 1e-4), 1.0], False), noise_level(np.ones(3), False)
-    (0.0001, nan)
     """
     if known_sigma:
         return 1.0
@@ -283,18 +262,16 @@ def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust
         (:mod:`matfit.fitting.lm`), the fastest on every table size and bounded in memory;
         ``"lm"``, ``"gn"``, ``"dogleg"``, ``"bfgs"`` (optimistix), ``"lbfgs"``, ``"jaxopt_lm"``
         (jaxopt).
-    loss, robust, robust_scale : see :mod:`matfit.fitting.losses`.
-        ``loss`` defaults to ``"l2"`` for a named family, to
+    loss, robust, robust_scale
+        See :mod:`matfit.fitting.losses`; ``loss`` defaults to ``"l2"`` for a named family, to
         :data:`~matfit.fitting.CHOICE_LOSS` when the family is chosen.
-    fixed : dict, optional
-        Parameters held at given values.  tied : per-channel parameters shared by all channels.
+    fixed, tied : optional
+        Parameters held at given values; per-channel parameters shared by all channels.
     starts : int
-        Number of starts: the data-driven guess plus the ``starts - 1`` best of the screened
-        candidates (random draws around the guess and the guess with the widths of the
-        table's extracted microfacet distribution; see :func:`fit_starts`). With the table's own
-        sigma (``l2``, no robust loss) an end whose reduced chi-square lies above
-        :func:`refit_line` is solved again from ``max(REFIT_STARTS, 2 * starts)`` other starts and
-        the lower end kept (``info`` says so): the end is judged against the noise.
+        The data-driven guess plus the ``starts - 1`` best screened candidates
+        (:func:`fit_starts`). With the table's own sigma (``l2``, no robust loss) an end whose
+        reduced chi-square lies above :func:`refit_line` is solved again from
+        ``max(REFIT_STARTS, 2 * starts)`` other starts and the lower end kept (``info`` says so).
     init : dict, optional
         Starting values replacing the data-driven guess.
 
@@ -304,9 +281,8 @@ def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust
 
     Examples
     --------
-    >>> import numpy as np, jax.numpy as jnp
+    >>> import numpy as np
     >>> from matfit import Table
-    >>> from matfit.models import Lambert
     >>> from matfit.fitting import fit
     >>> rng = np.random.default_rng(0)
     >>> wo = np.tile([0.0, 0.0, 1.0], (50, 1)); wi = rng.normal(size=(50, 3)); wi[:, 2] = abs(wi[:, 2])
@@ -438,16 +414,14 @@ def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust
 
 def fit_batch(tables, model="plastic", method=DEFAULT_METHOD, loss="l2", fixed=None, tied=(), starts=1, max_steps=128,
               rtol=1e-8, atol=1e-10, dtype=None):
-    """Fit many tables of the same shape in one vectorized call (e.g. texels).
-
-    Every table gets its own data-driven start (``starts`` per table) and its own solve, in one
-    compiled program (:func:`fit_arrays`).
+    """Fit many tables of the same shape (e.g. texels), each from its own data-driven starts, in
+    one compiled program (:func:`fit_arrays`).
 
     Parameters
     ----------
     tables : sequence of matfit.Table
         Tables of one shape (rows and channels).
-    model, method, loss, fixed, tied, starts, max_steps, rtol, atol, dtype :
+    model, method, loss, fixed, tied, starts, max_steps, rtol, atol, dtype
         As for :func:`fit` (``method`` must be a batched one, :attr:`Method.batched`).
 
     Returns
@@ -580,13 +554,13 @@ def fit_arrays(wo, wi, values, weight=None, *, model="plastic", method=DEFAULT_M
         The weights are ``1 / sigma**2`` of the data's noise: standard errors are not rescaled by
         the residual variance.
     uncertainty : bool
-        Compute standard errors (the Gauss-Newton ``J^T J`` the solver returns with its solution).
+        Compute standard errors (from the ``J^T J`` the solver returns).
     refit : bool, default True
         Solve tables that end far above the noise level again from more starts (above).
     init : array_like, (B, k, p), optional
-        More candidate starts per table, natural values in the order of the labels (e.g. a
-        map's neighbouring solutions; NaN: none), screened with the random candidates (of the
-        first solve when ``starts > 1``, and of a refit).
+        More candidate starts per table, natural values in the order of the labels (e.g. a map's
+        neighbouring solutions; NaN: none), screened with the random candidates (of the first
+        solve when ``starts > 1``, and of a refit).
     level : float, optional
         The noise level to compare the ends with (default: the batch's, :func:`noise_level`).
 

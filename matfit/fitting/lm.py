@@ -3,19 +3,21 @@ r"""Levenberg-Marquardt on the normal equations with a grouped forward-differenc
 The fast solver behind ``fit(..., method="lm_fd")`` for large tables (a full MERL table has
 about 1.1 million valid cells, 3.3 million residuals) and for many small batched fits. One call
 is one XLA ``while_loop``; every iteration costs a few evaluations of the model on the table and
-a :math:`p \times p` solve, never an :math:`N \times p` factorization.
+a :math:`p \times p` solve, never an :math:`N \times p` factorization. This docstring describes
+the algorithm; :class:`LevenbergMarquardtFD` composes its parts and :func:`lm_fd` documents its
+options.
 
-Jacobian
+Jacobian (:class:`GroupedDifferences`)
     By forward differences, :math:`J_{:,j} \approx (r(z + h_j e_j) - r(z))/h_j` with
     :math:`h_j = \sqrt{\epsilon}\,\max(1, |z_j|)` (the rule of ``scipy.optimize.least_squares``
-    and MINPACK), or central differences (``eps^(1/3)`` steps) in float32. Columns are grouped
-    (Curtis, Powell & Reid 1974): the per-channel parameters of one name (``albedo[0..C-1]``,
-    ``eta[0..C-1]``) affect disjoint colour channels (every model's channels are independent in
-    ``eval``), so one evaluation perturbs all of them at once. A family with ``G`` parameter
-    names needs ``G`` extra evaluations per Jacobian (forward differences), whatever ``C``.
-    Forward-mode AD (``jax.jacfwd``) gives the same matrix to rounding but compiles on XLA's CPU
-    backend into many partly recomputed loops, much slower than the evaluations it replaces
-    (see ``docs/performance.md``).
+    and MINPACK), or central differences (``eps^(1/3)`` steps, two evaluations per group) in
+    float32. Columns are grouped (Curtis, Powell & Reid 1974): the per-channel parameters of one
+    name (``albedo[0..C-1]``, ``eta[0..C-1]``) affect disjoint colour channels (every model's
+    channels are independent in ``eval``), so one evaluation perturbs all of them at once. A
+    family with ``G`` parameter names needs ``G`` extra evaluations per Jacobian (forward
+    differences), whatever ``C``. Forward-mode AD (``jax.jacfwd``) gives the same matrix to
+    rounding but compiles on XLA's CPU backend into many partly recomputed loops, much slower
+    than the evaluations it replaces (see ``docs/performance.md``).
 
 Channel-split residuals
     ``fn`` may return the residuals as one ``(N, C)`` array or as a tuple of ``C`` arrays
@@ -27,29 +29,31 @@ Channel-split residuals
     (:data:`SMALL_TABLE`) the ``G`` points are the iterations of one loop, so the model is
     compiled once instead of ``G`` times: there compilation, not the solve, is the fit's time.
 
-Normal equations
+Normal equations (:func:`normal_equations`)
     With the compressed differences :math:`K_c` (rows x groups) of channel ``c`` and the map
     :math:`E_c` from groups to parameters (``1/h_j`` where parameter ``j`` of group ``g`` acts
     on channel ``c``): :math:`J^T J = \sum_c E_c^T (K_c^T K_c) E_c`,
     :math:`J^T r = \sum_c E_c^T K_c^T r_c`.
 
-Steps (Nielsen 1999; Madsen, Nielsen & Tingleff 2004, Alg. 3.16, with Marquardt's scaling)
+Steps (:class:`BoxedDampedStep`, :class:`NielsenDamping`)
+    After Nielsen 1999 and Madsen, Nielsen & Tingleff 2004, Alg. 3.16, with Marquardt's scaling:
     :math:`(J^TJ + \mu D)\,\delta = -J^Tr`, :math:`D` the largest diagonal of :math:`J^TJ` seen
     so far (Moré 1978: a parameter whose sensitivity vanishes, e.g. at a bound, keeps a finite
-    damping); the gain ratio
+    damping), :math:`\mu = \tau`, :math:`\nu = 2` at the start; the gain ratio
     :math:`\rho = (F(z) - F(z+\delta)) / (\tfrac12\delta^T(\mu D\delta - J^Tr))` accepts the step
-    when positive and updates :math:`\mu \leftarrow \mu\max(1/3, 1-(2\rho-1)^3)`, else
-    :math:`\mu \leftarrow \mu\nu`, :math:`\nu \leftarrow 2\nu`. Every iteration is one trial step
-    and, when it was accepted, the Jacobian at the point it reached (one flat loop, fast under
-    ``vmap``); the first iteration evaluates the start itself, so that the model's residuals and
-    Jacobian appear once each in the compiled program. No coordinate of ``z`` moves by more
-    than ``max_step`` (default 3) in one step (a coordinate that would go further is held at ``max_step`` and the others are solved again
-    given it, :func:`_box_step`; the gain ratio uses the general predicted decrease
-    :math:`-g^T\delta - \tfrac12\delta^TJ^TJ\delta`): a sigmoid-mapped parameter
-    whose Gauss-Newton step would throw it deep into saturation, where its derivative vanishes
-    for good, gets there only if the objective keeps agreeing (on a full MERL conductor table the
-    unlimited first step set ``k`` to exactly 0 and ended 0.2 % above the minimum found with the cap).
-    With ``extrapolate=True`` (``fit`` sets it for the solves of a large table) an accepted
+    when positive and updates :math:`\mu \leftarrow \mu\max(1/3, 1-(2\rho-1)^3)`,
+    :math:`\nu \leftarrow 2`, else :math:`\mu \leftarrow \mu\nu`, :math:`\nu \leftarrow 2\nu`.
+    Every iteration is one trial step and, when it was accepted, the Jacobian at the point it
+    reached (one flat loop, fast under ``vmap``); the first iteration evaluates the start itself,
+    so that the model's residuals and Jacobian appear once each in the compiled program. No
+    coordinate of ``z`` moves by more than ``max_step`` (default 3) in one step (a coordinate
+    that would go further is held at ``max_step`` and the others are solved again given it,
+    :func:`_box_step`; the gain ratio uses the general predicted decrease
+    :math:`-g^T\delta - \tfrac12\delta^TJ^TJ\delta`): a sigmoid-mapped parameter whose
+    Gauss-Newton step would throw it deep into saturation, where its derivative vanishes for
+    good, gets there only if the objective keeps agreeing (on a full MERL conductor table the
+    unlimited first step set ``k`` to exactly 0 and ended 0.2 % above the minimum found with the
+    cap). With ``extrapolate=True`` (``fit`` sets it for the solves of a large table) an accepted
     step whose gain ratio exceeds 1.25 is followed by one evaluation at the minimum of the
     parabola through :math:`F(z)`, :math:`g^T\delta` and :math:`F(z+\delta)` along the step
     (factor in [1, 4]), kept when lower (:func:`_extrapolated`): a large-residual problem's
@@ -68,7 +72,7 @@ Secant model (``secant=True``, which ``fit`` also sets for a large table)
     that solve with the damping and the secant model of its subset solution (``warm``; ``S``
     scaled by the ratio of the two ``J^T J`` traces, both sums over rows): 4 steps.
 
-Stopping
+Stopping (:class:`StepTermination`)
     ``converged`` after an accepted step with gain ratio above 1/4 that lowered the objective by at
     most ``max(rtol, 4 eps) * F + atol`` or moved ``z`` by at most ``rtol (rtol + |z|)`` (2-norms):
     the ``ftol``/``xtol`` rule of ``scipy.optimize.least_squares``, either one sufficing (a
@@ -80,9 +84,9 @@ Stopping
     rounding, and would otherwise run on to ``max_reject``); after a rejected trial step no longer
     than ``t (t + |z|)``, ``t = max(rtol, 4 eps)`` (scipy's ``xtol`` test, which it applies while
     its trust region shrinks: the damping has made the step too short to move ``z``); when the
-    gradient's largest entry is at most ``atol``; or when no decrease is possible any more
-    (``max_reject`` consecutive rejected steps: the objective is at its floating-point floor).
-    Otherwise the loop stops after ``max_steps`` Jacobians.
+    gradient's largest entry is at most ``atol`` (at the start too); or when no decrease is
+    possible any more (``max_reject`` consecutive rejected steps: the objective is at its
+    floating-point floor). Otherwise the loop stops after ``max_steps`` Jacobians.
 
 References
 ----------
@@ -126,7 +130,6 @@ def column_groups(par):
     Parameters
     ----------
     par : Parametrization
-        The family's free parameters and channel count.
 
     Returns
     -------
@@ -167,11 +170,11 @@ def _steps(z, central):
 def _differences(fn, z, args, seeds, owner, central, r, stacked=True):
     """Compressed differences ``K``, the group-to-parameter map ``E`` (C, G, p) and ``r``.
 
-    ``stacked``: ``K`` is one array (G, N, C) from one vmapped evaluation of the G perturbed
-    points (the model appears once in the program, and what depends only on the table's
-    directions is computed once: large tables). Else ``K`` is a list of G arrays (N, C), the
-    points evaluated one after the other (small tables, :data:`SMALL_TABLE`: under ``vmap``
-    the stacked layout was measured slower, ``docs/performance.md``)."""
+    ``stacked``: ``K`` is one array (G, N, C) from one vmapped evaluation of the G perturbed points
+    (large tables: the model appears once in the program, what depends only on the directions is
+    computed once). Else a list of G arrays (N, C) evaluated one after the other (small tables,
+    where the stacked layout under ``vmap`` was measured slower, ``docs/performance.md``).
+    """
     seeds = jnp.asarray(seeds, z.dtype)
     owner = jnp.asarray(owner, z.dtype)
     if r is None:
@@ -184,11 +187,10 @@ def _differences(fn, z, args, seeds, owner, central, r, stacked=True):
 
 
 def _shifted(z, seed, h):
-    """``z + seed * h`` for a 0/1 group ``seed`` (a constant), assembled from slices of ``z``: the
-    coordinates outside the group are then ``z``'s own slices, and XLA recognizes what the
-    perturbed evaluations share with each other (a rough conductor's lobe, which depends on
-    ``alpha`` only, is computed once for the ``eta`` and ``k`` groups instead of once per group).
-    A ``seed`` whose values are unknown while tracing takes the plain ``z + seed * h``."""
+    """``z + seed * h`` for a constant 0/1 group ``seed``, assembled from slices of ``z``, so that XLA
+    sees what the perturbed evaluations share (a rough conductor's lobe, which depends on ``alpha``
+    only, is computed once for the ``eta`` and ``k`` groups). A traced ``seed`` takes the plain sum.
+    """
     try:
         on = np.asarray(seed) != 0
     except jax.errors.TracerArrayConversionError:
@@ -206,10 +208,10 @@ def group_map(seeds, owner, h, central):
 
 
 def _gram(xs):
-    """Gram matrix ``[x_i . x_j]`` (m, m) of ``m`` arrays (n,), one product per pair ``i <= j``,
-    each summed over blocks of ``GRAM_BLOCK`` lanes first (n a multiple of it): on a full MERL
-    table faster than XLA's CPU dot or a stack of the arrays followed by one reduction
-    (``docs/performance.md``)."""
+    """Gram matrix ``[x_i . x_j]`` (m, m) of ``m`` arrays (n,), each product summed over blocks of
+    ``GRAM_BLOCK`` lanes first (n a multiple of it): on a full MERL table faster than XLA's CPU dot
+    or one reduction over the stacked arrays (``docs/performance.md``).
+    """
     if xs[0].shape[0] % GRAM_BLOCK:
         X = jnp.stack(xs)
         return X @ X.T
@@ -230,18 +232,10 @@ def widen(x):
     Parameters
     ----------
     x : jax.Array
-        Any array.
 
     Returns
     -------
     jax.Array
-
-    Examples
-    --------
-    >>> import jax, jax.numpy as jnp
-    >>> from matfit.fitting.lm import widen
-    >>> widen(jnp.ones(2, jnp.float32)).dtype == (jnp.float64 if jax.config.read("jax_enable_x64") else jnp.float32)
-    True
     """
     return x.astype(jnp.promote_types(x.dtype, jnp.float64)) if jax.config.read("jax_enable_x64") else x
 
@@ -250,10 +244,12 @@ def _channel_moments(fn, z, args, seeds, owner, central, r, wide=False):
     """Channel-split residuals (a tuple of C arrays (n,)): ``M`` (C, G, G), ``v`` (C, G), ``E``, ``r``.
 
     The G perturbed points are evaluated one after the other (no vmap: each channel stays one
-    single-output loop; on a small table in a ``lax.map``, one copy of the model in the program,
-    else unrolled, where XLA shares what the groups' points have in common), their differences
-    are materialized (an optimization barrier: otherwise XLA fuses the model into every product of the Gram matrix and recomputes it there), and each
-    channel's Gram matrix of ``[K_0 .. K_{G-1}, r]`` is one blocked reduction."""
+    single-output loop; a small table's in a ``lax.map``, one copy of the model in the program,
+    else unrolled, where XLA shares what the points have in common); their differences are
+    materialized (an optimization barrier: else XLA fuses the model into every product of the Gram
+    matrix and recomputes it there), and each channel's Gram matrix of ``[K_0 .. K_{G-1}, r]`` is
+    one blocked reduction.
+    """
     if r is None:
         r = tuple(fn(z, args))
     h = _steps(z, central)
@@ -281,15 +277,14 @@ def _channel_moments(fn, z, args, seeds, owner, central, r, wide=False):
 
 
 def _moments(K, r):
-    """``M = [K_g . K_h]`` (C, G, G) and ``v = [K_g . r]`` (C, G) per channel, for differences ``K``
-    and residuals ``r`` (N, C).
+    """``M = [K_g . K_h]`` (C, G, G) and ``v = [K_g . r]`` (C, G) per channel.
 
-    ``K`` stacked (G, N, C) (large tables) takes XLA's dot. ``K`` a list of G arrays (N, C)
-    (small tables, the texels of ``fit_batch``, where this runs under ``vmap``) takes one
-    elementwise product and sum per pair, after an optimization barrier (else XLA may fuse the
-    model into every product): XLA's CPU batched dot of such tiny matrices was measured slower
-    than the products, while on a full MERL table the dot is faster than the elementwise form
-    (``docs/performance.md``, "Batched texel fits")."""
+    ``K`` stacked (G, N, C) takes XLA's dot (faster on a full MERL table). ``K`` a list (small
+    tables, the texels of ``fit_batch`` under ``vmap``) takes one elementwise product and sum per
+    pair after an optimization barrier (else XLA may fuse the model into every product): XLA's CPU
+    batched dot of such tiny matrices was measured slower (``docs/performance.md``, "Batched texel
+    fits").
+    """
     if not isinstance(K, (list, tuple)):
         return jnp.einsum("gnc,hnc->cgh", K, K), jnp.einsum("gnc,nc->cg", K, r)
     K, r = jax.lax.optimization_barrier((list(K), r))
@@ -303,29 +298,21 @@ def _split(r):
 
 
 def normal_equations(fn, z, args, seeds, owner, central=False, r=None, F=None, wide=False):
-    """``(F, J^T J, J^T r, r)`` at ``z`` for residuals ``fn(z, args)``.
-
-    The Jacobian is the grouped forward (or central) difference of the module docstring, reduced
+    """``(F, J^T J, J^T r, r)`` at ``z``: the grouped differences of the module docstring reduced
     straight to the moments (never an ``N x p`` matrix).
 
     Parameters
     ----------
-    fn : callable
-        ``fn(z, args)``: one array (N, C), or a tuple of ``C`` arrays (n,) (one per colour
-        channel: the channel-split layout of :mod:`matfit.fast`, which XLA compiles into
-        single-output loops).
+    fn, args, seeds, owner
+        As for :func:`lm_fd`.
     z : jax.Array (p,)
         The point.
-    args : pytree
-        Passed through to ``fn``.
-    seeds, owner : numpy.ndarray
-        From :func:`column_groups`.
     central : bool, default False
         Central differences.
     r, F : optional
         The residuals (and ``F = 0.5 |r|^2``) at ``z`` when already known.
     wide : bool, default False
-        Sum the moments in float64 (when x64 is on) and return ``A``, ``g`` so, for covariances.
+        As for :func:`lm_fd` (``g`` is summed so too).
 
     Returns
     -------
@@ -335,15 +322,6 @@ def normal_equations(fn, z, args, seeds, owner, central=False, r=None, F=None, w
         ``J^T J`` and ``J^T r``.
     r : jax.Array or tuple
         The residuals, in ``fn``'s layout.
-
-    Examples
-    --------
-    >>> import numpy as np, jax.numpy as jnp
-    >>> from matfit.fitting.lm import normal_equations
-    >>> x = jnp.linspace(0.0, 1.0, 5)
-    >>> F, A, g, r = normal_equations(lambda z, x: (z[0] * x)[:, None], jnp.array([1.0]), x, np.eye(1), np.ones((1, 1)))
-    >>> bool(abs(A[0, 0] - 1.875) < 1e-3 and abs(g[0] - 1.875) < 1e-3)  # both sum(x^2), to rounding
-    True
     """
     r_like = r if r is not None else jax.eval_shape(fn, z, args)
     if _split(r_like):
@@ -360,26 +338,18 @@ def normal_equations(fn, z, args, seeds, owner, central=False, r=None, F=None, w
 
 
 def half_sq(r):
-    """``0.5 |r|^2`` of residuals in any layout (one array, or a tuple of one per channel), summed
-    in float64 when available (a float32 sum over millions of residuals loses the digits that
-    decide whether a step is accepted); returned in r's dtype.
+    """``0.5 |r|^2`` of residuals in either layout, summed in float64 when available (a float32 sum
+    over millions of residuals loses the digits that decide whether a step is accepted).
 
     Parameters
     ----------
     r : jax.Array or tuple of jax.Array
-        Residuals.
+        One array, or one per channel.
 
     Returns
     -------
     jax.Array
-        A scalar.
-
-    Examples
-    --------
-    >>> import jax.numpy as jnp
-    >>> from matfit.fitting.lm import half_sq
-    >>> float(half_sq((jnp.array([1.0, 2.0]), jnp.array([2.0]))))
-    4.5
+        A scalar in ``r``'s dtype.
     """
     if _split(r):
         return sum(half_sq(rc) for rc in r)
@@ -389,34 +359,20 @@ def half_sq(r):
 
 
 def jacobian(fn, z, args, seeds, owner, central=None):
-    """The residuals and the grouped-difference Jacobian at ``z``, materialized (for tests and
-    small problems; solvers use :func:`normal_equations`).
+    """The residuals and the grouped-difference Jacobian at ``z``, materialized (for tests and small
+    problems; solvers use :func:`normal_equations`).
 
     Parameters
     ----------
-    fn : callable
-        ``fn(z, args)``: residuals (N, C) or a tuple of C arrays (n,) (stacked to (n, C)).
+    fn, args, seeds, owner, central
+        As for :func:`lm_fd` (channel-split residuals are stacked to (n, C)).
     z : jax.Array (p,)
         The point.
-    args : pytree
-        Passed through to ``fn``.
-    seeds, owner : numpy.ndarray
-        From :func:`column_groups`.
-    central : bool, optional
-        Central differences (default: float32 only).
 
     Returns
     -------
     r : jax.Array (N, C)
     J : jax.Array (N, C, p)
-
-    Examples
-    --------
-    >>> import numpy as np, jax.numpy as jnp
-    >>> from matfit.fitting.lm import jacobian
-    >>> r, J = jacobian(lambda z, a: (z[0] * a)[:, None], jnp.array([2.0]), jnp.array([1.0, 3.0]), np.eye(1), np.ones((1, 1)))
-    >>> J.shape, [round(float(v), 4) for v in J[:, 0, 0]]
-    ((2, 1, 1), [1.0, 3.0])
     """
     central = (z.dtype == jnp.float32) if central is None else bool(central)
     if _split(jax.eval_shape(fn, z, args)):
@@ -430,11 +386,10 @@ def _stacked(fn):
 
 
 def _spd_solve(B, b):
-    """``B^{-1} b`` for a small symmetric positive definite ``B`` (p, p): Cholesky, unrolled over
-    the static ``p``. Under ``vmap`` (a batch of texel fits) it is a few fused elementwise loops
-    over the batch; ``jnp.linalg.solve`` calls LAPACK once per member there (one call per texel
-    per solve). Cholesky needs no pivoting on such a
-    matrix (Golub & Van Loan, Matrix Computations, 4th ed., 4.2)."""
+    """``B^{-1} b`` for a small symmetric positive definite ``B``: Cholesky (no pivoting needed, Golub
+    & Van Loan 4.2), unrolled over the static ``p``. Under ``vmap`` it is a few fused elementwise
+    loops; ``jnp.linalg.solve`` calls LAPACK once per member (one call per texel per solve).
+    """
     p = B.shape[-1]
     tiny = jnp.finfo(B.dtype).tiny
     L = {}
@@ -453,16 +408,15 @@ def _spd_solve(B, b):
 
 
 def _box_step(B, g, cap, passes=3):
-    """The damped Gauss-Newton step ``B delta = -g`` with no coordinate beyond ``cap``.
+    """The damped step ``B delta = -g`` with no coordinate beyond ``cap``: an active-set projection.
 
-    A coordinate whose solution leaves the box ``|delta_j| <= cap`` is held on the box's face
-    (``sign * cap``) and the others are solved again given it (an active-set projection,
-    ``passes`` rounds; a coordinate once held stays held). Scaling the whole step down instead
-    (its direction kept) lets one saturated parameter, whose vanishing derivative asks for a
-    huge step, freeze all the others: on a full MERL nickel table that stopped the fit after one
-    step at 1e-5 above the minimum. Whatever is still outside the box after the passes is scaled
-    into it. Should the damped model ``g.d + d.B.d / 2`` not fall along the result, the whole
-    step scaled into the box (which always descends) is taken instead."""
+    A coordinate outside the box is held on its face (``sign * cap``) and the others are solved
+    again given it (``passes`` rounds; once held, held); what is still outside is then scaled in.
+    Scaling the whole step instead lets one saturated parameter, whose vanishing derivative asks
+    for a huge step, freeze all the others (on a full MERL nickel table the fit stopped after one
+    step at 1e-5 above the minimum). Where the damped model ``g.d + d.B.d / 2`` does not fall
+    along the result, the whole step scaled into the box (which always descends) is taken.
+    """
     eye = jnp.eye(B.shape[-1], dtype=B.dtype)
     delta = _spd_solve(B, -g)
     if not np.isfinite(cap):
@@ -511,13 +465,11 @@ class _State(NamedTuple):
 
 
 def _extrapolated(fn, args, s, delta, z_new, r_new, F_new, try_it, cap):
-    """After an accepted step whose decrease beat the model's prediction by more than 25 %, try
-    the minimum of the parabola through ``F(z)``, the slope ``g . delta`` and ``F(z + delta)``
-    along the same direction (``alpha`` clipped to [1, 4] and to the step cap) and keep it when
-    it is lower. The Gauss-Newton model of a large-residual problem can overestimate the
-    curvature: on a full MERL plastic table every step went half the way (gain ratio 1.49, steps
-    halving) and the fit took 10 full-table iterations. Returns ``(z, r, F)``; one evaluation,
-    only where tried (``lax.cond``)."""
+    """The line extrapolation after a step that beat the model (module docstring, "Steps"):
+    ``alpha`` clipped to [1, 4] and to the step cap, one evaluation, only where tried
+    (``lax.cond``); returns ``(z, r, F)``. On a full MERL plastic table every step had gone half the
+    way (gain ratio 1.49, steps halving) and the fit took 10 full-table iterations.
+    """
     slope = jnp.dot(s.g, delta).astype(F_new.dtype)
     curv = F_new - s.F - slope
     alpha = jnp.where(curv > 0, -slope / (2 * jnp.where(curv > 0, curv, 1)), 1)
@@ -535,16 +487,14 @@ def _extrapolated(fn, args, s, delta, z_new, r_new, F_new, try_it, cap):
 
 
 def _secant_update(s, step, g_new, F_new, accepted):
-    """After a step ``step`` from ``s.z``: the secant estimate of the Hessian's second-order term
-    ``S`` (sum of ``r_i`` times the Hessians of the residuals, which Gauss-Newton drops) and the
-    model for the next step, the augmented ``J^T J + S`` when it predicted this step's decrease
-    better than ``J^T J`` alone (NL2SOL's model switch).
+    """The secant model after a step (module docstring, "Secant model"): ``(S, aug)``, ``aug`` whether
+    ``J^T J + S`` predicted this step's decrease better than ``J^T J`` (NL2SOL's model switch).
 
-    ``S`` is sized (Oren & Luenberger's factor ``min(1, |d.y#| / |d.S.d|)``) and updated by the
-    Dennis-Gay-Welsch formula so that ``S d = y#``, with ``y = g_new - g`` and
-    ``y# = y - J^T J d``, the part of the gradient's change that ``J^T J`` does not explain (NL2SOL
-    forms ``(J_new - J)^T r_new``; without the Jacobians, only their normal equations, this is its
-    first-order equivalent). Skipped after a rejected step or where ``y.d`` is not positive."""
+    ``S`` is sized by Oren & Luenberger's factor ``min(1, |d.y#| / |d.S.d|)`` and updated by the
+    Dennis-Gay-Welsch formula. NL2SOL forms ``y#`` as ``(J_new - J)^T r_new``; with only the normal
+    equations, ``y - J^T J d`` is its first-order equivalent. Skipped after a rejected step or where
+    ``y.d`` is not positive.
+    """
     d = step
     y = g_new - s.g
     ys = jnp.dot(y, d)
@@ -594,8 +544,8 @@ class LMResult(NamedTuple):
     >>> import numpy as np, jax.numpy as jnp
     >>> from matfit.fitting.lm import lm_fd
     >>> res = lm_fd(lambda z, a: (z - a)[None, :], jnp.zeros(1), jnp.ones(1), np.eye(1), np.ones((1, 1)))
-    >>> res._fields[:4], float(res.F) < 1e-12
-    (('z', 'F', 'steps', 'converged'), True)
+    >>> res._fields, float(res.F) < 1e-12
+    (('z', 'F', 'steps', 'converged', 'A', 'evals', 'r', 'mu', 'S', 'aug'), True)
     """
 
     z: jax.Array
@@ -611,13 +561,13 @@ class LMResult(NamedTuple):
 
 
 class GroupedDifferences(eqx.Module):
-    """The Jacobian part of :class:`LevenbergMarquardtFD`: grouped forward (or central)
-    differences, reduced straight to the normal equations (:func:`normal_equations`).
+    """The Jacobian of :class:`LevenbergMarquardtFD` (module docstring, "Jacobian"), reduced straight
+    to the normal equations (:func:`normal_equations`).
 
     Parameters
     ----------
     central : bool, optional
-        Central differences (``eps^(1/3)`` steps); default: in float32 only.
+        As for :func:`lm_fd`.
 
     Examples
     --------
@@ -630,47 +580,11 @@ class GroupedDifferences(eqx.Module):
     central: Optional[bool] = eqx.field(default=None, static=True)
 
     def is_central(self, dtype) -> bool:
-        """Whether differences are central for parameters of ``dtype``.
-
-        Parameters
-        ----------
-        dtype : dtype
-            The parameters' floating type.
-
-        Returns
-        -------
-        bool
-
-        Examples
-        --------
-        >>> import jax.numpy as jnp
-        >>> from matfit.fitting.lm import GroupedDifferences
-        >>> GroupedDifferences(central=True).is_central(jnp.float64)
-        True
-        """
+        """Whether differences are central for parameters of ``dtype``."""
         return (jnp.dtype(dtype) == jnp.float32) if self.central is None else bool(self.central)
 
     def evaluations(self, n_groups, dtype) -> int:
-        """Model evaluations per Jacobian beyond the residuals at the point.
-
-        Parameters
-        ----------
-        n_groups : int
-            Column groups (:func:`column_groups`).
-        dtype : dtype
-            The parameters' floating type.
-
-        Returns
-        -------
-        int
-
-        Examples
-        --------
-        >>> import jax.numpy as jnp
-        >>> from matfit.fitting.lm import GroupedDifferences
-        >>> GroupedDifferences().evaluations(3, jnp.float32)
-        6
-        """
+        """Model evaluations per Jacobian beyond the point's residuals (twice ``n_groups`` when central)."""
         return 2 * n_groups if self.is_central(dtype) else n_groups
 
     def __call__(self, fn, z, args, seeds, owner, r=None, F=None, wide=False):
@@ -678,13 +592,13 @@ class GroupedDifferences(eqx.Module):
 
 
 class BoxedDampedStep(eqx.Module):
-    """The descent of :class:`LevenbergMarquardtFD`: the damped Gauss-Newton step
-    ``(J^T J + mu D) delta = -J^T r`` with no coordinate beyond ``max_step`` (:func:`_box_step`).
+    """The descent of :class:`LevenbergMarquardtFD` (module docstring, "Steps"): the damped
+    Gauss-Newton step ``(J^T J + mu D) delta = -J^T r`` with no coordinate beyond ``max_step``.
 
     Parameters
     ----------
     max_step : float, default 3.0
-        Largest change of any coordinate of ``z`` in one step (``np.inf``: no limit).
+        As for :func:`lm_fd`.
 
     Examples
     --------
@@ -703,72 +617,30 @@ class BoxedDampedStep(eqx.Module):
 
 
 class NielsenDamping(eqx.Module):
-    """The damping schedule of :class:`LevenbergMarquardtFD` (Nielsen 1999): after an accepted
-    step of gain ratio ``rho``, ``mu <- mu max(1/3, 1 - (2 rho - 1)^3)`` and ``nu <- 2``; after a
-    rejected one ``mu <- mu nu``, ``nu <- 2 nu``.
+    """The damping schedule of :class:`LevenbergMarquardtFD` (Nielsen 1999; module docstring, "Steps").
 
     Parameters
     ----------
     tau : float, default 1e-3
-        Initial damping, relative to the diagonal of ``J^T J`` (Marquardt's scaling).
+        As for :func:`lm_fd`.
 
     Examples
     --------
     >>> import jax.numpy as jnp
     >>> from matfit.fitting.lm import NielsenDamping
     >>> mu, nu = NielsenDamping().update(jnp.asarray(1.0), jnp.asarray(2.0), jnp.asarray(False), jnp.asarray(0.0))
-    >>> float(mu), float(nu)
+    >>> float(mu), float(nu)  # rejected: mu <- mu nu, nu <- 2 nu
     (2.0, 4.0)
     """
 
     tau: float = eqx.field(default=1e-3, static=True)
 
     def init(self, dtype):
-        """``(mu, nu)`` before the first step.
-
-        Parameters
-        ----------
-        dtype : dtype
-            The parameters' floating type.
-
-        Returns
-        -------
-        tuple of jax.Array
-
-        Examples
-        --------
-        >>> import jax.numpy as jnp
-        >>> from matfit.fitting.lm import NielsenDamping
-        >>> [float(x) for x in NielsenDamping(0.01).init(jnp.float32)]
-        [0.009999999776482582, 2.0]
-        """
+        """``(mu, nu) = (tau, 2)`` before the first step."""
         return jnp.asarray(self.tau, dtype), jnp.asarray(2.0, dtype)
 
     def update(self, mu, nu, accepted, rho):
-        """The damping after a trial step.
-
-        Parameters
-        ----------
-        mu, nu : jax.Array
-            The damping and its growth factor before the step.
-        accepted : jax.Array of bool
-            Whether the step was accepted.
-        rho : jax.Array
-            Its gain ratio.
-
-        Returns
-        -------
-        tuple of jax.Array
-            ``(mu, nu)``.
-
-        Examples
-        --------
-        >>> import jax.numpy as jnp
-        >>> from matfit.fitting.lm import NielsenDamping
-        >>> mu, nu = NielsenDamping().update(jnp.asarray(1.0), jnp.asarray(2.0), jnp.asarray(True), jnp.asarray(1.0))
-        >>> round(float(mu), 6), float(nu)
-        (0.333333, 2.0)
-        """
+        """``(mu, nu)`` after a trial step, ``accepted`` or not, of gain ratio ``rho``."""
         mu = jnp.where(accepted, mu * jnp.maximum(1 / 3, 1 - (2 * rho - 1) ** 3), mu * nu)
         return mu, jnp.where(accepted, 2.0, 2 * nu)
 
@@ -778,10 +650,8 @@ class StepTermination(eqx.Module):
 
     Parameters
     ----------
-    rtol, atol : float
-        Relative and absolute tolerances.
-    max_reject : int, default 12
-        Consecutive rejected steps after which the objective counts as minimal.
+    rtol, atol, max_reject
+        As for :func:`lm_fd`.
 
     Examples
     --------
@@ -796,24 +666,7 @@ class StepTermination(eqx.Module):
     max_reject: int = eqx.field(default=12, static=True)
 
     def at_start(self, g):
-        """True when the gradient ``g`` at the start is already at most ``atol``.
-
-        Parameters
-        ----------
-        g : jax.Array
-            ``J^T r`` at the start.
-
-        Returns
-        -------
-        jax.Array of bool
-
-        Examples
-        --------
-        >>> import jax.numpy as jnp
-        >>> from matfit.fitting.lm import StepTermination
-        >>> bool(StepTermination(1e-8, 1e-10).at_start(jnp.ones(2)))
-        False
-        """
+        """True when the gradient ``g`` at the start is already at most ``atol``."""
         return jnp.max(jnp.abs(g)) <= self.atol
 
     def __call__(self, s, delta, F_new, F_c, pred, rho, accepted, g, rejects):
@@ -838,10 +691,8 @@ class StepTermination(eqx.Module):
 
 
 class LevenbergMarquardtFD(eqx.Module):
-    """Levenberg-Marquardt on streamed normal equations, composed of its parts: a Jacobian
-    (:class:`GroupedDifferences`), a descent (:class:`BoxedDampedStep`), a damping schedule
-    (:class:`NielsenDamping`) and a termination (:class:`StepTermination`); optionally the line
-    extrapolation after steps that beat the model (:func:`_extrapolated`).
+    """Levenberg-Marquardt on streamed normal equations (the module docstring), composed of its
+    parts: a Jacobian, a descent, a damping schedule and a termination.
 
     Parameters
     ----------
@@ -849,17 +700,8 @@ class LevenbergMarquardtFD(eqx.Module):
     descent : BoxedDampedStep
     damping : NielsenDamping
     termination : StepTermination
-    extrapolate : bool, default False
-        After an accepted step that beat its predicted decrease by more than 25 %, try the line
-        minimum along it (one more evaluation there). For single large fits; under ``vmap``
-        every member would pay the evaluation.
-    secant : bool, default False
-        Keep a secant estimate ``S`` of the second-order term that Gauss-Newton drops and step
-        with ``J^T J + S`` while that model predicts the decreases better (Dennis, Gay & Welsch
-        1981, NL2SOL; :func:`_secant_update`). Gauss-Newton converges only linearly on a
-        large-residual problem, a measured table that no model of the family fits to its noise;
-        with ``S`` it converges superlinearly. For single large fits (a small symmetric
-        eigenvalue problem per iteration checks that the damped model is definite).
+    extrapolate, secant : bool, default False
+        As for :func:`lm_fd`.
 
     Examples
     --------
@@ -881,44 +723,7 @@ class LevenbergMarquardtFD(eqx.Module):
     secant: bool = eqx.field(default=False, static=True)
 
     def minimise(self, fn, z0, args, seeds, owner, max_steps=100, wide=False, warm=None) -> LMResult:
-        """Minimize ``0.5 |fn(z, args)|^2`` from ``z0``.
-
-        Parameters
-        ----------
-        fn : callable
-            ``fn(z, args)``: residuals ``(N, C)``, or a tuple of ``C`` arrays ``(n,)``
-            (channel-split); traceable by JAX.
-        z0 : jax.Array (p,)
-            The start.
-        args : pytree
-            Passed through to ``fn``.
-        seeds, owner : numpy.ndarray
-            The column groups, from :func:`column_groups`.
-        max_steps : int, default 100
-            Maximum number of Jacobians (accepted steps).
-        wide : bool, default False
-            Sum the moments in float64 (when x64 is on) and return ``A`` so, for covariances.
-        warm : LMResult, optional
-            A solution of the same problem on a subset of its rows (``fit``'s subset starts):
-            its damping, and its secant model scaled by the ratio of the two ``J^T J`` traces,
-            start this solve, instead of the initial damping and ``S = 0``.
-
-        Returns
-        -------
-        LMResult
-
-        Examples
-        --------
-        >>> import numpy as np, jax.numpy as jnp
-        >>> from matfit.fitting.lm import (BoxedDampedStep, GroupedDifferences, LevenbergMarquardtFD,
-        ...                                NielsenDamping, StepTermination)
-        >>> solver = LevenbergMarquardtFD(GroupedDifferences(), BoxedDampedStep(), NielsenDamping(),
-        ...                               StepTermination(1e-8, 1e-10))
-        >>> res = solver.minimise(lambda z, a: (z - a)[None, :], jnp.zeros(2), jnp.array([1.0, -1.0]),
-        ...                       np.eye(2), np.ones((2, 2)))
-        >>> np.round(np.asarray(res.z), 6).tolist()
-        [1.0, -1.0]
-        """
+        """Minimize ``0.5 |fn(z, args)|^2`` from ``z0`` (the arguments as for :func:`lm_fd`)."""
         z0 = jnp.asarray(z0)
         dt = z0.dtype
         per_jac = self.jacobian.evaluations(len(seeds), dt)
@@ -988,8 +793,9 @@ class LevenbergMarquardtFD(eqx.Module):
 
 def lm_fd(fn, z0, args, seeds, owner, max_steps=100, rtol=1e-8, atol=1e-10, central=None, max_reject=12,
           tau=1e-3, max_step=3.0, wide=False, extrapolate=False, secant=False, warm=None) -> LMResult:
-    """Minimize ``0.5 |fn(z, args)|^2`` from ``z0`` with :class:`LevenbergMarquardtFD` built from
-    these options (see the module docstring).
+    """Minimize ``0.5 |fn(z, args)|^2`` from ``z0`` with a :class:`LevenbergMarquardtFD` built from
+    these options (the algorithm: the module docstring). This is where the solver's options are
+    described; its parts and ``method="lm_fd"`` refer here.
 
     Parameters
     ----------
@@ -1001,34 +807,39 @@ def lm_fd(fn, z0, args, seeds, owner, max_steps=100, rtol=1e-8, atol=1e-10, cent
     args : pytree
         Passed through to ``fn``.
     seeds, owner : numpy.ndarray
-        From :func:`column_groups`.
+        The column groups, from :func:`column_groups`.
     max_steps : int, default 100
         Maximum number of Jacobians (accepted steps).
     rtol, atol : float
-        Stopping tolerances (:class:`StepTermination`).
+        Stopping tolerances (module docstring, "Stopping").
     central : bool, optional
-        Central differences (default: float32 only).
+        Central differences (``eps^(1/3)`` steps); default: in float32 only.
     max_reject : int, default 12
         Consecutive rejected steps after which the objective counts as minimal.
     tau : float, default 1e-3
-        Initial damping, relative to the diagonal of ``J^T J``.
+        Initial damping, relative to the diagonal of ``J^T J`` (Marquardt's scaling).
     max_step : float, default 3.0
         Largest change of any coordinate of ``z`` in one step (``np.inf``: no limit).
     wide : bool, default False
         Sum the moments ``J^T J``, ``J^T r`` in float64 (when x64 is on) at every Jacobian, and
         return ``A`` so: a float32 fit's ``A`` then serves covariances as a float64 one does.
     extrapolate : bool, default False
-        Line extrapolation after steps that beat the model (:class:`LevenbergMarquardtFD`).
+        After an accepted step that beat its predicted decrease by more than 25 %, try the line
+        minimum along it (one more evaluation there). For single large fits; under ``vmap`` every
+        member would pay the evaluation.
     secant : bool, default False
-        The secant model of the Hessian's second-order term (:class:`LevenbergMarquardtFD`).
+        Keep a secant estimate ``S`` of the second-order term that Gauss-Newton drops and step with
+        ``J^T J + S`` while that model predicts the decreases better (NL2SOL): superlinear instead
+        of linear convergence on a large-residual problem. For single large fits (a small symmetric
+        eigenvalue problem per iteration checks that the damped model is definite).
     warm : LMResult, optional
-        A subset's solution whose damping and secant model start this solve
-        (:meth:`LevenbergMarquardtFD.minimise`).
+        A solution of the same problem on a subset of its rows (``fit``'s subset starts): its
+        damping, and its secant model scaled by the ratio of the two ``J^T J`` traces, start this
+        solve instead of ``tau`` and ``S = 0``.
 
     Returns
     -------
     LMResult
-        ``(z, F, steps, converged, A, evals, r)``.
 
     Examples
     --------

@@ -55,25 +55,12 @@ def check_loss(loss, robust) -> None:
     Parameters
     ----------
     loss : str
-        The loss name.
     robust : str or None
-        The robust variant.
 
     Raises
     ------
     matfit.errors.ParameterError
         Naming the accepted values.
-
-    Examples
-    --------
-    >>> from matfit.errors import ParameterError
-    >>> from matfit.fitting.losses import check_loss
-    >>> check_loss("e2", "huber")
-    >>> try:
-    ...     check_loss("l1", None)
-    ... except ParameterError as e:
-    ...     print(e)
-    loss must be one of ['l2', 'e2', 'cbrt', 'cosine', 'relative'], got 'l1'
     """
     if loss not in LOSSES:
         raise ParameterError(f"loss must be one of {list(LOSSES)}, got {loss!r}")
@@ -82,17 +69,15 @@ def check_loss(loss, robust) -> None:
 
 
 def residuals(pred, values, weight, cos_i, loss="l2", robust=None, scale=1.0):
-    """Residual vector (N, C) for predictions ``pred`` against ``values``.
-
-    The same as ``residuals_from_targets(pred, *prepare_targets(values, weight, cos_i, loss),
-    cos_i, loss, robust, scale)``: a fit prepares the data's part once.
+    """Residual vector (N, C) for predictions ``pred`` against ``values``: the same as
+    ``residuals_from_targets(pred, *prepare_targets(values, weight, cos_i, loss), cos_i, loss,
+    robust, scale)`` (a fit prepares the data's part once).
 
     Parameters
     ----------
-    pred : array_like (N, C)
-        Model predictions at the table's directions.
-    values : array_like (N, C)
-        Measurements (may be NaN where ``weight`` is 0).
+    pred, values : array_like (N, C)
+        Model predictions and measurements at the table's directions (``values`` may be NaN
+        where ``weight`` is 0).
     weight : array_like (N, C)
         Weights, ``1/sigma^2`` when the table has standard deviations; zero on invalid rows
         (see :meth:`matfit.Table.effective_weight`).
@@ -120,11 +105,8 @@ def residuals(pred, values, weight, cos_i, loss="l2", robust=None, scale=1.0):
     --------
     >>> import jax.numpy as jnp
     >>> from matfit.fitting.losses import residuals
-    >>> r = residuals(jnp.array([[2.0]]), jnp.array([[1.0]]), jnp.array([[4.0]]), jnp.array([1.0]))
-    >>> float(r[0, 0])
+    >>> float(residuals(jnp.array([[2.0]]), jnp.array([[1.0]]), jnp.array([[4.0]]), jnp.array([1.0]))[0, 0])  # sqrt(4) (2 - 1)
     2.0
-    >>> float(residuals(jnp.array([[2.0]]), jnp.array([[1.0]]), jnp.array([[0.0]]), jnp.array([1.0]))[0, 0])
-    0.0
     """
     check_loss(loss, robust)
     shapes = {"pred": jnp.shape(pred), "values": jnp.shape(values), "weight": jnp.shape(weight),
@@ -151,43 +133,26 @@ def _transform(x, cos_i, loss):
 
 
 def prepare_targets(values, weight, cos_i, loss="l2"):
-    """The data's part of :func:`residuals`, computed once per table.
-
-    ``r = factor * (T(pred) - target)`` (0 where ``factor`` is 0), with ``T`` the loss's
-    transform (``log(1 + f cos_i)`` for ``"e2"``, ``cbrt(f cos_i + delta)`` for ``"cbrt"``, identity
-    otherwise) and ``factor`` ``sqrt(w)``
-    times the loss's weight (``cos_i`` for ``"cosine"``, ``1 / (|y| + eps)`` for
-    ``"relative"``, ``eps`` = :data:`REL_EPS`).
+    """The data's part of :func:`residuals`, computed once per table: ``r = factor * (T(pred) -
+    target)`` (0 where ``factor`` is 0), ``T`` the loss's transform (``log(1 + f cos_i)`` for
+    ``"e2"``, ``cbrt(f cos_i + delta)`` for ``"cbrt"``, identity otherwise), ``factor`` ``sqrt(w)``
+    times the loss's weight (``cos_i`` for ``"cosine"``, ``1 / (|y| + eps)`` for ``"relative"``,
+    ``eps`` = :data:`REL_EPS`).
 
     Parameters
     ----------
-    values : array_like (N, C)
-        Measurements (NaN allowed where ``weight`` is 0).
-    weight : array_like (N, C)
-        Weights, zero on invalid rows.
-    cos_i : array_like (N,)
-        Cosine of the incident zenith angle of each row.
-    loss : {"l2", "e2", "cbrt", "cosine", "relative"}, default "l2"
-        The loss.
+    values, weight, cos_i, loss
+        As for :func:`residuals`.
 
     Returns
     -------
     target, factor : jax.Array (N, C)
-        ``T(values)`` and the residual factor; rows with ``weight = 0`` get ``factor = 0`` and
-        ``target = 0``.
+        ``T(values)`` and the residual factor; both 0 on rows with ``weight = 0``.
 
     Raises
     ------
     matfit.errors.ParameterError
         When ``loss`` is unknown.
-
-    Examples
-    --------
-    >>> import jax.numpy as jnp
-    >>> from matfit.fitting.losses import prepare_targets
-    >>> t, f = prepare_targets(jnp.array([[1.0]]), jnp.array([[4.0]]), jnp.array([0.5]), "cosine")
-    >>> float(t[0, 0]), float(f[0, 0])
-    (1.0, 1.0)
     """
     ok = weight > 0
     sw = safe_sqrt(jnp.where(ok, weight, 0))
@@ -202,20 +167,14 @@ def prepare_targets(values, weight, cos_i, loss="l2"):
 
 
 def residuals_from_targets(pred, target, factor, cos_i, loss="l2", robust=None, scale=1.0):
-    """Residuals from data prepared by :func:`prepare_targets` (see :func:`residuals`).
+    """Residuals from data prepared by :func:`prepare_targets`.
 
     Parameters
     ----------
-    pred : array_like (N, C)
-        Model predictions.
+    pred, cos_i, loss, robust
+        As for :func:`residuals` (``loss`` the one ``target`` and ``factor`` were prepared for).
     target, factor : array_like (N, C)
         The output of :func:`prepare_targets`.
-    cos_i : array_like (N,)
-        Cosine of the incident zenith angle of each row (used by ``"e2"``'s transform).
-    loss : {"l2", "e2", "cbrt", "cosine", "relative"}, default "l2"
-        The loss ``target`` and ``factor`` were prepared for.
-    robust : {None, "huber", "cauchy"}, default None
-        The robust variant (see the module docstring).
     scale : float or array_like, default 1.0
         Scale ``s`` of the robust variant; not checked here (see :func:`residuals`).
 
@@ -229,16 +188,6 @@ def residuals_from_targets(pred, target, factor, cos_i, loss="l2", robust=None, 
     ------
     matfit.errors.ParameterError
         When ``robust`` is unknown.
-
-    Examples
-    --------
-    >>> import jax.numpy as jnp
-    >>> from matfit.fitting.losses import prepare_targets, residuals_from_targets
-    >>> t, f = prepare_targets(jnp.array([[1.0]]), jnp.array([[4.0]]), jnp.array([1.0]))
-    >>> float(residuals_from_targets(jnp.array([[2.0]]), t, f, jnp.array([1.0]))[0, 0])
-    2.0
-    >>> round(float(residuals_from_targets(jnp.array([[2.0]]), t, f, jnp.array([1.0]), robust="huber")[0, 0]), 4)
-    1.8897
     """
     r = jnp.where(factor != 0, factor * (_transform(pred, cos_i, loss) - target), 0)
     if robust is None:

@@ -1,8 +1,7 @@
 r"""Posterior sampling with emcee over the same parameter space as :func:`matfit.fitting.fit`.
 
-The walkers move in the unconstrained vector ``z`` of :class:`~matfit.fitting.Parametrization`
-(the same bijections as the least-squares fit), and every reported quantity is in the natural
-parameters ``theta(z)``. The log-probability is
+The walkers move in the unconstrained ``z`` of :class:`~matfit.fitting.Parametrization` (the
+least-squares fit's bijections); every reported quantity is in the natural ``theta(z)``:
 
 .. math::
 
@@ -12,57 +11,47 @@ parameters ``theta(z)``. The log-probability is
 (numpy in, numpy out) that emcee calls with ``vectorize=True``.
 
 Likelihood (Gaussian, independent residuals, full normalization)
-    * ``noise="table"``: the table's ``sigma`` is the noise: with the residuals ``r`` of
-      :func:`~matfit.fitting.losses.residuals` (weights ``1/sigma^2``),
-      :math:`\log L = \sum_i [-r_i^2/2 - \log\sigma_i - \log(2\pi)/2]` over the usable entries.
-      For ``loss="l2"`` this is the exact likelihood of ``y ~ N(f, sigma^2)``; for the other
-      losses it treats ``sigma`` as the standard deviation in the loss's space (a pseudo
-      likelihood).
-    * ``noise="fit"``: the noise scale is sampled too (an extra parameter, label
-      ``noise_scale``): a **relative** noise model ``sigma_i = s |t(y_i)| + floor``, where
-      ``t(y)`` is the measured value in the loss's space (``y`` for ``"l2"``, ``y cos(theta_i)``
-      for ``"cosine"``, ``log(1 + y cos(theta_i))`` for ``"e2"``, ``cbrt(y cos(theta_i))`` for ``"cbrt"``, ``y/(|y| + eps)`` for
-      ``"relative"``) and ``floor`` a small absolute term (default ``1e-5 *`` the median
-      ``|t(y)|``) that keeps ``sigma > 0`` where ``y = 0``. The table's ``sigma``/``weight`` then
-      only selects the usable entries (weight > 0). The walkers move in ``log s`` with a prior
-      uniform in ``log s`` on ``[1e-6, 10]`` (scale invariant).
+    * ``noise="table"``: with the residuals ``r`` of :func:`~matfit.fitting.losses.residuals`
+      (weights ``1/sigma^2``), :math:`\log L = \sum_i [-r_i^2/2 - \log\sigma_i - \log(2\pi)/2]`
+      over the usable entries: exact for ``loss="l2"`` (``y ~ N(f, sigma^2)``), a pseudo
+      likelihood with ``sigma`` in the loss's space for the other losses.
+    * ``noise="fit"``: a sampled **relative** noise scale (label ``noise_scale``),
+      ``sigma_i = s |t(y_i)| + floor``, ``t(y)`` the measurement in the loss's space (``y`` for
+      ``"l2"``, ``y cos(theta_i)`` for ``"cosine"``, ``log(1 + y cos(theta_i))`` for ``"e2"``,
+      ``cbrt(y cos(theta_i))`` for ``"cbrt"``, ``y/(|y| + eps)`` for ``"relative"``); ``floor``
+      (default ``1e-5 *`` the median ``|t(y)|``) keeps ``sigma > 0`` where ``y = 0``. The table's
+      ``sigma``/``weight`` then only selects the usable entries (weight > 0). The walkers move in
+      ``log s``, prior uniform in ``log s`` on ``[1e-6, 10]`` (scale invariant).
 
 Priors on the model parameters
-    * ``prior="uniform"``: uniform in each natural parameter within its bounds
-      (:class:`~matfit.fitting.Param`), i.e. ``-log(upper - lower)`` per bounded component; the
-      change of variables adds :meth:`Parametrization.log_jacobian`.
-    * ``prior={"alpha": (0.3, 0.1), "eta": (1.5, 0.2), ...}``: independent Gaussian priors
-      ``N(mean, sd)`` on the natural parameters, truncated to the bounds (unnormalized
-      truncation). Keys are parameter names (applied to every component of a per-channel
-      parameter; ``mean``/``sd`` may then be per-channel sequences) or single labels such as
-      ``"albedo[1]"``. Parameters not named keep the uniform prior.
+    * ``prior="uniform"``: uniform in each natural parameter within its bounds, i.e.
+      ``-log(upper - lower)`` per bounded component, plus :meth:`Parametrization.log_jacobian`.
+    * ``prior={"alpha": (0.3, 0.1), "eta": (1.5, 0.2), ...}``: independent Gaussians
+      ``N(mean, sd)`` truncated to the bounds (unnormalized truncation). Keys are parameter names
+      (every component of a per-channel parameter; ``mean``/``sd`` may be per-channel sequences)
+      or single labels such as ``"albedo[1]"``; parameters not named keep the uniform prior.
 
 Moves
-    ``moves="de"`` (default): emcee's differential-evolution move (80 %) with its snooker
-    variant (20 %) (ter Braak 2006; ter Braak & Vrugt 2008): proposals along the difference of
-    two other walkers follow a correlated, stretched posterior (a conductor's ``eta`` and ``k``
-    on an RGB channel trade off along a curved ridge). ``moves="stretch"``: Goodman & Weare's
-    affine-invariant stretch move, emcee's own default. On the demo's gold conductor (34 rows)
-    the DE mixture cuts the largest autocorrelation time about 2.7x and the chain meets its
-    criterion within 20000 steps, where the stretch move does not.
+    ``moves="de"`` (default): differential evolution (80 %) with its snooker variant (20 %)
+    (ter Braak 2006; ter Braak & Vrugt 2008): proposals along the difference of two walkers follow
+    a correlated, curved posterior (a conductor's ``eta`` and ``k`` on one channel).
+    ``moves="stretch"``: Goodman & Weare's affine-invariant stretch move, emcee's default. On the
+    demo's gold conductor only DE meets the criterion within 20000 steps (``docs/performance.md``).
 
 Run length
-    The walkers start in a small ball around a least-squares fit (``start``, by default
-    :func:`~matfit.fitting.fit` is run first). The burn-in runs in chunks until it is at least
+    The walkers start in a small ball around a least-squares fit (``start``; by default
+    :func:`~matfit.fitting.fit` runs first). The burn-in runs in chunks until it is at least
     ``burn_factor`` (5) times the largest integrated autocorrelation time estimated on its second
     half; the sampler is then reset and the production run is extended in chunks, re-estimating
     ``tau`` with emcee's ``get_autocorr_time(tol=0)``, until its length exceeds
-    ``tau_factor * max(tau)`` (``converged=True``) or the total step count reaches ``max_steps``
-    (``converged=False``). The stored chain is thinned by ``thin = max(1, floor(min(tau) / 2))``
-    unless ``thin`` is given.
+    ``tau_factor * max(tau)`` (``converged=True``) or the total reaches ``max_steps``
+    (``converged=False``). The stored chain is thinned by ``max(1, floor(min(tau) / 2))`` unless
+    ``thin`` is given.
 
 Speed
-    Each emcee step makes two calls of half the ensemble each. On a CPU, with a table of a few
-    thousand rows, these calls are small and a step is as much emcee's own Python as JAX: call
-    :func:`matfit.parallel.for_small_calls` before JAX starts (one core, synchronous dispatch)
-    for faster steps than JAX's defaults give on a small machine (figures against a numpy
-    log-probability in ``docs/performance.md``).
-    Large tables (a full MERL table) want every core instead.
+    Each emcee step makes two calls of half the ensemble each; with a table of a few thousand
+    rows a CPU step is as much emcee's Python as JAX: call :func:`matfit.parallel.for_small_calls`
+    before JAX starts (``docs/performance.md``). Large tables (a full MERL table) want every core.
 
 References
 ----------
@@ -109,7 +98,7 @@ class SamplingError(MatfitError):
     Parameters
     ----------
     *args : object
-        As for :class:`~matfit.errors.MatfitError`: one message naming the problem.
+        One message naming the problem, as for :class:`~matfit.errors.MatfitError`.
 
     Examples
     --------
@@ -117,8 +106,6 @@ class SamplingError(MatfitError):
     >>> from matfit.fitting.mcmc import SamplingError
     >>> issubclass(SamplingError, MatfitError)
     True
-    >>> str(SamplingError("sample_posterior: no finite log-probability near the start"))
-    'sample_posterior: no finite log-probability near the start'
     """
 
 
@@ -179,8 +166,8 @@ def _compiled(family, channels, fixed_items, tied, loss, noise):
 def _packed(batched, treedef, specs):
     """``batched(X, args)`` taking ``args`` as one flat vector (:func:`_pack`): a jitted call
     flattens, checks and transfers each argument leaf, a cost per leaf that one vector pays once
-    (the A/B is in ``docs/performance.md``). Cached on the structure and the leaves' shapes, so tables of one shape share
-    one compilation."""
+    (the A/B is in ``docs/performance.md``). Cached on the structure and the leaves' shapes, so
+    tables of one shape share one compilation."""
     sizes = [math.prod(shape) for shape, _ in specs]
     offsets = np.cumsum([0] + sizes)
 
@@ -246,50 +233,29 @@ class LogProb:
     (``z`` and, with ``noise="fit"``, ``log s`` last) to (n,) float64 log-probabilities.
 
     Calls are evaluated in fixed-size blocks (``block`` rows, padded) so that the jitted function
-    compiles once per configuration and block size. A single point ``X`` of shape (d,) gives a
-    scalar; points with another number of coordinates than ``ndim`` raise
-    :class:`~matfit.errors.ParameterError`. Built by :func:`make_log_prob`, not directly.
-
-    Parameters
-    ----------
-    par : matfit.fitting.Parametrization
-        The parametrization of the free parameters.
-    batched : callable
-        The jitted, ``vmap``-ed log-probability ``batched(X, args)``.
-    to_natural : callable
-        The jitted map from ``z`` to the natural parameter vector.
-    args : tuple
-        The table's data and the prior's arrays, the second argument of ``batched``.
-    noise : {"table", "fit"}
-        The noise model.
-    prior_desc : str
-        Description of the prior (``"uniform"`` or ``"gaussian {...}"``).
-    block : int
-        Number of points per compiled call.
-    dtype : dtype
-        Float dtype of the computation.
+    compiles once per configuration and block size. A single point (d,) gives a scalar; points with
+    another number of coordinates than ``ndim`` raise :class:`~matfit.errors.ParameterError`. Built
+    by :func:`make_log_prob` (from the jitted ``batched(X, args)`` and ``z -> theta`` maps), not
+    directly.
 
     Attributes
     ----------
     par : matfit.fitting.Parametrization
-        The parametrization.
+        The parametrization of the free parameters.
     args : tuple
-        The table's data and the prior's arrays.
-    noise : str
-        The noise model.
-    prior : str
-        Description of the prior.
+        The table's data and the prior's arrays, the second argument of ``batched``.
+    noise, prior : str
+        The noise model; ``"uniform"`` or ``"gaussian {...}"``.
     block : int
-        Number of points per compiled call (:func:`sample_posterior` sets half the ensemble).
+        Points per compiled call (:func:`sample_posterior` sets half the ensemble).
     dtype : numpy.dtype
         Float dtype of the computation.
     ndim : int
-        Coordinates per point: the free parameters, plus one (``log s``) with ``noise="fit"``.
+        Coordinates per point: the free parameters, plus ``log s`` with ``noise="fit"``.
     labels : list of str
         Names of the coordinates (``noise_scale`` last with ``noise="fit"``).
     noise_floor : float
-        The absolute floor of the relative noise model (0 unless ``noise="fit"``), set by
-        :func:`make_log_prob`.
+        The relative noise model's absolute floor (0 unless ``noise="fit"``).
 
     Examples
     --------
@@ -299,10 +265,8 @@ class LogProb:
     >>> table = Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1), sigma=np.full((3, 3), 0.01))
     >>> from matfit.fitting import make_log_prob
     >>> lp = make_log_prob(table, model="lambert")
-    >>> lp.labels, lp.ndim
-    (['albedo[0]', 'albedo[1]', 'albedo[2]'], 3)
-    >>> lp(np.zeros((5, 3))).shape, np.ndim(lp(np.zeros(3)))
-    ((5,), 0)
+    >>> lp.labels, lp(np.zeros((5, 3))).shape, np.ndim(lp(np.zeros(3)))
+    (['albedo[0]', 'albedo[1]', 'albedo[2]'], (5,), 0)
     >>> z = np.repeat(np.linspace(-3, 3, 601)[:, None], 3, axis=1)  # equal albedos
     >>> round(float(lp.to_natural(z)[np.argmax(lp(z)), 0]), 2)  # the mode: albedo = pi * 0.1
     0.31
@@ -338,31 +302,7 @@ class LogProb:
         return out[0] if single else out
 
     def to_natural(self, X):
-        """Natural parameter values (and ``s``) for walkers ``X`` (..., d).
-
-        Parameters
-        ----------
-        X : array_like (..., d)
-            Points in the sampled space: ``z`` and, with ``noise="fit"``, ``log s`` last.
-
-        Returns
-        -------
-        ndarray (..., d)
-            The natural parameters ``theta(z)`` (float64) and, with ``noise="fit"``, ``s``.
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from matfit import Table
-        >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
-        >>> table = Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1), sigma=np.full((3, 3), 0.01))
-        >>> from matfit.fitting import make_log_prob
-        >>> lp = make_log_prob(table, model="lambert", noise="fit")
-        >>> lp.labels
-        ['albedo[0]', 'albedo[1]', 'albedo[2]', 'noise_scale']
-        >>> lp.to_natural(np.array([0.0, 0.0, 0.0, np.log(0.1)])).round(6).tolist()  # albedos mid-range
-        [0.5, 0.5, 0.5, 0.1]
-        """
+        """Natural parameters ``theta(z)`` (float64) of walkers (..., d); ``s`` last with ``noise="fit"``."""
         X = np.asarray(X, dtype=np.float64)
         p = self.par.size
         th = np.asarray(self._to_natural(jnp.asarray(X[..., :p], dtype=self.dtype)), dtype=np.float64)
@@ -373,37 +313,18 @@ class LogProb:
 
 def make_log_prob(table, model="plastic", fixed=None, tied=(), loss="l2", noise="table", prior="uniform",
                   noise_floor=None, block=None, dtype=None) -> LogProb:
-    """The log-posterior :class:`LogProb` that :func:`sample_posterior` hands to emcee (see the
-    module docstring for the likelihood, the priors and the noise models).
-
-    With ``noise="fit"`` the points are ``(z, log s)``; :meth:`LogProb.to_natural` maps them to
-    the natural parameters and ``s``.
+    """The log-posterior :class:`LogProb` that :func:`sample_posterior` hands to emcee (the
+    likelihood, priors and noise models are in the module docstring).
 
     Parameters
     ----------
-    table : matfit.Table
-        The measurements; with ``noise="table"`` it must have ``sigma``.
-    model : str, default "plastic"
-        Family name (see :data:`matfit.fitting.FAMILIES`).
-    fixed : dict, optional
-        Parameters held at given values, as for :func:`matfit.fitting.fit`.
-    tied : str or sequence of str, default ()
-        Per-channel parameters shared by all channels, as for :func:`matfit.fitting.fit`.
-    loss : str, default "l2"
-        One of :data:`~matfit.fitting.losses.LOSSES` (no robust losses).
-    noise : {"table", "fit"}, default "table"
-        The noise model (see :func:`sample_posterior`).
-    prior : "uniform" or dict, default "uniform"
-        Uniform in the natural parameters within their bounds, or Gaussian ``(mean, sd)`` per
-        parameter name or label (see the module docstring).
+    table, model, fixed, tied, loss, noise, prior, dtype
+        As for :func:`sample_posterior`.
     noise_floor : float, optional
-        Absolute floor of the relative noise model (``noise="fit"`` only; default ``1e-5`` times
-        the median ``|t(y)|`` of the usable entries, ``1e-12`` when that is 0).
+        Absolute floor of the relative noise model (``noise="fit"`` only); default ``1e-5`` times
+        the median ``|t(y)|`` of the usable entries, ``1e-12`` when that is 0.
     block : int, optional
-        Number of points per compiled call (inputs are padded to it); default 8
-        (:func:`sample_posterior` uses half the ensemble).
-    dtype : dtype, optional
-        JAX float dtype of the computation (default: JAX's default float).
+        Points per compiled call (inputs are padded to it); default 8.
 
     Returns
     -------
@@ -413,22 +334,8 @@ def make_log_prob(table, model="plastic", fixed=None, tied=(), loss="l2", noise=
     Raises
     ------
     matfit.errors.ParameterError
-        When ``table`` is not a :class:`~matfit.Table`, ``model``, ``loss``, ``noise``, ``prior``
-        or ``noise_floor`` is invalid, ``noise="table"`` meets a table without ``sigma``, or the
-        table has no more usable residuals than sampled parameters.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit import Table
-    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
-    >>> table = Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1), sigma=np.full((3, 3), 0.01))
-    >>> from matfit.fitting import make_log_prob
-    >>> lp = make_log_prob(table, model="lambert", prior={"albedo": (0.3, 0.05)})
-    >>> lp.prior
-    'gaussian {"albedo": [[0.3, 0.3, 0.3], [0.05, 0.05, 0.05]]}'
-    >>> bool(lp(np.full(3, -0.78)) > lp(np.full(3, 1.0)))  # albedos 0.31 against 0.73
-    True
+        When an argument is invalid, ``noise="table"`` meets a table without ``sigma``, or the table
+        has no more usable residuals than sampled parameters.
     """
     if not isinstance(table, Table):
         raise ParameterError(f"sample_posterior: table must be a matfit.Table, got {type(table).__name__}")
@@ -490,14 +397,9 @@ class PosteriorResult:
 
     Attributes
     ----------
-    family : str
-        The model family.
-    loss : str
-        The loss of the likelihood.
-    noise : str
-        The noise model, ``"table"`` or ``"fit"``.
-    prior : str
-        Description of the prior (``"uniform"`` or ``"gaussian {...}"``).
+    family, loss, noise, prior : str
+        The model family, the likelihood's loss, the noise model (``"table"`` or ``"fit"``) and
+        the prior (``"uniform"`` or ``"gaussian {...}"``).
     labels : list of str
         Names of the sampled parameters (``noise_scale`` last with ``noise="fit"``).
     chain : ndarray (steps, walkers, p)
@@ -505,37 +407,25 @@ class PosteriorResult:
     log_prob : ndarray (steps, walkers)
         Log-posterior of the stored samples.
     median, mean, std : ndarray (p,)
-        Median, mean and standard deviation (``ddof=1``) of the stored samples.
-    ci90 : ndarray (p, 2)
-        5th and 95th percentiles.
-    ci68 : ndarray (p, 2)
-        16th and 84th percentiles.
+        Of the stored samples (``std`` with ``ddof=1``).
+    ci90, ci68 : ndarray (p, 2)
+        The 5th/95th and 16th/84th percentiles.
     acceptance_fraction : ndarray (walkers,)
         Production acceptance fraction of each walker.
     autocorr_time : ndarray (p,)
         Integrated autocorrelation time of the production run (in steps).
     n_effective : ndarray (p,)
         ``walkers * production steps / autocorr_time``.
-    burn_in : int
-        Steps discarded.
-    n_steps : int
-        Production steps (before thinning).
-    thin : int
-        Thinning of the stored chain.
-    n_walkers : int
-        Number of walkers.
-    tau_factor : float
-        The run-length target: ``n_steps > tau_factor * max(autocorr_time)``.
-    converged : bool
-        ``n_steps > tau_factor * max(autocorr_time)``.
+    burn_in, n_steps, thin, n_walkers : int
+        Steps discarded, production steps (before thinning), thinning, walkers.
+    tau_factor, converged : float, bool
+        The run-length target; whether ``n_steps > tau_factor * max(autocorr_time)``.
     wall_time : float
         Seconds.
     noise_floor : float, default 0.0
-        The absolute floor of the relative noise model (0 unless ``noise="fit"``).
-    fixed : dict, default {}
-        The parameters held fixed, as arrays.
-    tied : tuple of str, default ()
-        The tied per-channel parameters.
+        The relative noise model's absolute floor (0 unless ``noise="fit"``).
+    fixed, tied : dict and tuple of str, default {} and ()
+        The parameters held fixed (as arrays); the tied per-channel parameters.
     moves : str, default "stretch"
         emcee's moves (:data:`MOVES`); files written before the field read as ``"stretch"``.
 
@@ -546,13 +436,20 @@ class PosteriorResult:
     >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
     >>> table = Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1), sigma=np.full((3, 3), 0.01))
     >>> from matfit.fitting import fit, sample_posterior
-    >>> start = fit(table, model="lambert", starts=1)
+    >>> start = fit(table, model="lambert", starts=1)  # without it, sample_posterior runs fit itself
     >>> post = sample_posterior(table, model="lambert", start=start, max_steps=200, chunk=50, tau_factor=10,
     ...                         progress=False)
-    >>> post.chain.shape, post.samples.shape, post.n_steps, post.thin
-    ((50, 12, 3), (600, 3), 50, 1)
-    >>> bool(np.all((post.ci90[:, 0] < post.median) & (post.median < post.ci90[:, 1])))
+    >>> post.labels, post.chain.shape, post.samples.shape, post.n_steps, post.thin
+    (['albedo[0]', 'albedo[1]', 'albedo[2]'], (50, 12, 3), (600, 3), 50, 1)
+    >>> post.burn_in + post.n_steps <= 200  # max_steps caps burn-in and production together
     True
+    >>> bool(np.all(abs(post.median - np.pi * 0.1) < 3 * post.std))  # the albedo of f = 0.1
+    True
+    >>> lo, hi = post.interval(0.5)[0]  # a central 50 % interval, inside the 90 % one
+    >>> bool(post.ci90[0, 0] < lo < post.median[0] < hi < post.ci90[0, 1])
+    True
+    >>> print(post.summary().splitlines()[0].split(":")[0])
+    lambert posterior (l2, noise=table, prior=uniform, moves=de)
     """
 
     family: str
@@ -584,87 +481,19 @@ class PosteriorResult:
 
     @property
     def samples(self):
-        """The chain flattened to (steps * walkers, p).
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from matfit import Table
-        >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
-        >>> table = Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1), sigma=np.full((3, 3), 0.01))
-        >>> from matfit.fitting import fit, sample_posterior
-        >>> start = fit(table, model="lambert", starts=1)
-        >>> post = sample_posterior(table, model="lambert", start=start, max_steps=200, chunk=50, tau_factor=10,
-        ...                         progress=False)
-        >>> post.samples.shape == (post.chain.shape[0] * post.n_walkers, 3)
-        True
-        """
+        """The chain flattened to (steps * walkers, p)."""
         return self.chain.reshape(-1, self.chain.shape[-1])
 
     def interval(self, level=0.9):
-        """Central credible interval (p, 2) at ``level`` from the stored samples.
-
-        Parameters
-        ----------
-        level : float, default 0.9
-            Probability mass of the interval, in (0, 1).
-
-        Returns
-        -------
-        ndarray (p, 2)
-            The ``50 (1 - level)`` and ``100 - 50 (1 - level)`` percentiles of :attr:`samples`
-            per parameter.
-
-        Raises
-        ------
-        matfit.errors.ParameterError
-            When ``level`` is not in (0, 1).
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from matfit import Table
-        >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
-        >>> table = Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1), sigma=np.full((3, 3), 0.01))
-        >>> from matfit.fitting import fit, sample_posterior
-        >>> start = fit(table, model="lambert", starts=1)
-        >>> post = sample_posterior(table, model="lambert", start=start, max_steps=200, chunk=50, tau_factor=10,
-        ...                         progress=False)
-        >>> lo, hi = post.interval(0.5)[0]
-        >>> bool(post.ci90[0, 0] < lo < post.median[0] < hi < post.ci90[0, 1])
-        True
-        """
+        """Central credible interval (p, 2) of :attr:`samples`; ``level`` in (0, 1), else ParameterError."""
         if not 0 < level < 1:
             raise ParameterError(f"interval: level must be in (0, 1), got {level!r}")
         q = 50 * (1 - level)
         return np.percentile(self.samples, [q, 100 - q], axis=0).T
 
     def summary(self) -> str:
-        """A text table of the run and of each parameter's median, intervals, ``tau`` and ``n_eff``.
-
-        Returns
-        -------
-        str
-            One line about the run (walkers, burn-in, steps, acceptance, convergence, time), a
-            header, then one line per parameter: median, 5 %, 95 %, 16 %, 84 % percentiles,
-            autocorrelation time and effective sample size.
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from matfit import Table
-        >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
-        >>> table = Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1), sigma=np.full((3, 3), 0.01))
-        >>> from matfit.fitting import fit, sample_posterior
-        >>> start = fit(table, model="lambert", starts=1)
-        >>> post = sample_posterior(table, model="lambert", start=start, max_steps=200, chunk=50, tau_factor=10,
-        ...                         progress=False)
-        >>> lines = post.summary().splitlines()
-        >>> lines[0].split(":")[0], lines[1].split()[:2], lines[2].split()[0]
-        ('lambert posterior (l2, noise=table, prior=uniform, moves=de)', ['parameter', 'median'], 'albedo[0]')
-        >>> len(lines)
-        5
-        """
+        """A text table: one line on the run, then per parameter the median, 5/95 % and 16/84 %
+        percentiles, ``tau`` and ``n_eff``."""
         lines = [f"{self.family} posterior ({self.loss}, noise={self.noise}, prior={self.prior}, moves={self.moves}): "
                  f"{self.n_walkers} walkers, burn-in {self.burn_in}, {self.n_steps} steps (thin {self.thin}), "
                  f"acceptance {np.mean(self.acceptance_fraction):.2f}, converged={self.converged} "
@@ -683,34 +512,8 @@ class PosteriorResult:
                 "converged", "wall_time", "noise_floor", "fixed", "tied", "moves")
 
     def save(self, path, **extra) -> None:
-        """Write the chains and the summaries to ``path`` (``.npz``, readable without pickle).
-
-        Parameters
-        ----------
-        path : str or path-like
-            The file (:func:`numpy.savez` appends ``.npz`` to a name without it).
-        **extra
-            JSON-serializable entries (e.g. a report), stored in the metadata under ``"extra"``.
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from matfit import Table
-        >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
-        >>> table = Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1), sigma=np.full((3, 3), 0.01))
-        >>> from matfit.fitting import fit, sample_posterior
-        >>> start = fit(table, model="lambert", starts=1)
-        >>> post = sample_posterior(table, model="lambert", start=start, max_steps=200, chunk=50, tau_factor=10,
-        ...                         progress=False)
-        >>> import json, tempfile
-        >>> with tempfile.TemporaryDirectory() as d:
-        ...     post.save(f"{d}/post.npz", note="example")
-        ...     with np.load(f"{d}/post.npz") as f:
-        ...         meta = json.loads(str(f["meta"]))
-        ...         shape = f["chain"].shape
-        >>> meta["format"], meta["extra"], shape == post.chain.shape
-        ('matfit.posterior/1', {'note': 'example'}, True)
-        """
+        """Write the chains and summaries to ``path`` (``.npz``, no pickle; :func:`numpy.savez`
+        appends ``.npz``); ``**extra`` JSON-serializable entries go to the metadata's ``"extra"``."""
         meta = {k: getattr(self, k) for k in self._SCALARS}
         meta["fixed"] = {k: np.asarray(v, float).tolist() for k, v in self.fixed.items()}
         meta["tied"] = list(self.tied)
@@ -721,41 +524,7 @@ class PosteriorResult:
 
     @classmethod
     def load(cls, path) -> "PosteriorResult":
-        """Read a file written by :meth:`save`.
-
-        Parameters
-        ----------
-        path : str or path-like
-            The ``.npz`` file.
-
-        Returns
-        -------
-        PosteriorResult
-            The result as saved (the ``extra`` metadata is not part of it).
-
-        Raises
-        ------
-        matfit.errors.ParameterError
-            When the file is not in the ``matfit.posterior/1`` format.
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from matfit import Table
-        >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
-        >>> table = Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1), sigma=np.full((3, 3), 0.01))
-        >>> from matfit.fitting import fit, sample_posterior
-        >>> start = fit(table, model="lambert", starts=1)
-        >>> post = sample_posterior(table, model="lambert", start=start, max_steps=200, chunk=50, tau_factor=10,
-        ...                         progress=False)
-        >>> import tempfile
-        >>> from matfit.fitting import PosteriorResult
-        >>> with tempfile.TemporaryDirectory() as d:
-        ...     post.save(f"{d}/post.npz")
-        ...     back = PosteriorResult.load(f"{d}/post.npz")
-        >>> back.labels == post.labels, bool(np.array_equal(back.chain, post.chain)), back.n_steps == post.n_steps
-        (True, True, True)
-        """
+        """Read a file of :meth:`save` (not ``extra``); ParameterError if not ``matfit.posterior/1``."""
         with np.load(path, allow_pickle=False) as f:
             meta = json.loads(str(f["meta"]))
             if meta.get("format") != NPZ_FORMAT:
@@ -798,81 +567,54 @@ def sample_posterior(table, model="plastic", fixed=None, tied=(), loss="l2", noi
     ----------
     table : matfit.Table
         The measurements; with ``noise="table"`` it must have ``sigma``.
-    model : str, default "plastic"
-        Family name, as for :func:`matfit.fitting.fit`.
-    fixed : dict, optional
-        Parameters held at given values, as for :func:`matfit.fitting.fit`.
-    tied : str or sequence of str, default ()
-        Per-channel parameters shared by all channels, as for :func:`matfit.fitting.fit`.
+    model, fixed, tied : optional
+        Family name (default ``"plastic"``), parameters held at given values, per-channel parameters
+        shared by all channels: as for :func:`matfit.fitting.fit`.
     loss : str, default "l2"
         As for :func:`matfit.fitting.fit` (no robust losses).
     noise : {"table", "fit"}, default "table"
-        ``"table"``: the table's ``sigma`` (required) is the noise. ``"fit"``: a relative noise
-        scale ``s`` (``sigma = s |value| + noise_floor``) is sampled as well.
+        The table's ``sigma`` is the noise, or a relative noise scale ``s`` is sampled as well.
     prior : "uniform" or dict, default "uniform"
-        Uniform in the natural parameters within their bounds, or Gaussian ``(mean, sd)`` per
-        parameter name or label (see the module docstring).
+        Uniform within the bounds, or Gaussian ``(mean, sd)`` per parameter name or label.
     n_walkers : int, optional
         Even, at least twice the number ``d`` of sampled parameters (``noise_scale`` included);
         default ``4 d`` (at least 8).
     max_steps : int, default 20000
-        Cap on the total number of steps (burn-in and production), at least 100; the burn-in
-        takes at most half of it.
-    tau_factor : float, default 50
-        The production run is extended until it is longer than ``tau_factor * max(tau)``.
+        Cap on all steps (burn-in and production), at least 100; the burn-in takes at most half.
+    tau_factor, burn_factor : float, default 50 and 5
+        The production run's target length and the burn-in's least length, in autocorrelation
+        times (module docstring); ``burn_factor >= 0``.
     start : matfit.fitting.FitResult, optional
-        A fit of the same family and free parameters: the walkers start in a small ball around
-        ``start.z`` (radius a tenth of its standard errors in ``z``, clipped to
-        ``[1e-5, 0.5]``; ``1e-3`` where a standard error is not finite); by default
-        :func:`matfit.fitting.fit` is run first. With ``noise="fit"`` the walkers' ``log s``
-        starts at the best value of a profile of the log-probability over ``log s`` at
-        ``start.z``.
-    seed : int, default 0
-        Seed of the starting ball and of emcee's random state.
-    progress : bool, default True
-        emcee's progress bar (tqdm) for every chunk.
+        A fit of the same family and free parameters (default: :func:`matfit.fitting.fit` is run).
+        The walkers start around ``start.z``, radius a tenth of its standard errors in ``z`` clipped
+        to ``[1e-5, 0.5]`` (``1e-3`` where not finite); with ``noise="fit"`` ``log s`` starts at the
+        best of a profile of the log-probability over ``log s`` at ``start.z``.
+    seed, progress : int and bool, default 0 and True
+        Seed of the starting ball and of emcee's random state; emcee's progress bar per chunk.
     chunk : int, default 200
         Minimum number of steps per chunk, at least 10.
-    burn_factor : float, default 5
-        The burn-in is at least ``burn_factor`` autocorrelation times (``>= 0``).
     thin : int, optional
-        Thinning of the stored chain; default ``max(1, floor(min(tau) / 2))``; at most half the
+        Thinning of the stored chain (default ``max(1, floor(min(tau) / 2))``), at most half the
         production steps.
     noise_floor : float, optional
-        Absolute floor of the relative noise model (``noise="fit"`` only; see
-        :func:`make_log_prob` for the default).
+        The relative noise model's absolute floor (``noise="fit"`` only; :func:`make_log_prob`).
     dtype : dtype, optional
         JAX float dtype of the computation (default: JAX's default float).
     moves : {"de", "stretch"}, default "de"
-        emcee's proposal moves (:data:`MOVES`, see the module docstring).
+        emcee's proposal moves (:data:`MOVES`).
 
     Returns
     -------
     PosteriorResult
-        The thinned production chain and its summaries, in natural units.
+        The thinned production chain and its summaries, in natural units (an example there).
 
     Raises
     ------
     matfit.errors.ParameterError
-        When an argument is invalid (see also :func:`make_log_prob`), or ``start`` is not a
-        :class:`~matfit.fitting.FitResult` of ``model`` with the same free parameters.
+        When an argument is invalid, or ``start`` is not a :class:`~matfit.fitting.FitResult` of
+        ``model`` with the same free parameters.
     SamplingError
         When no finite log-probability is found near the start.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit import Table
-    >>> from matfit.fitting import fit, sample_posterior
-    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
-    >>> table = Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1), sigma=np.full((3, 3), 0.01))
-    >>> start = fit(table, model="lambert", starts=1)  # without it, sample_posterior runs fit itself
-    >>> post = sample_posterior(table, model="lambert", start=start, max_steps=200, chunk=50, tau_factor=10,
-    ...                         progress=False)
-    >>> post.labels, post.n_walkers, post.burn_in + post.n_steps <= 200
-    (['albedo[0]', 'albedo[1]', 'albedo[2]'], 12, True)
-    >>> bool(np.all(abs(post.median - np.pi * 0.1) < 3 * post.std))  # the albedo of f = 0.1
-    True
     """
     import emcee
 

@@ -10,16 +10,10 @@ streams ``J^T J`` and ``J^T r`` through the model's evaluations and never materi
 needs gigabytes). The others stay for comparison and for problems where an exact Jacobian or a
 quasi-Newton method is wanted.
 
-Every method builds a solver object (:class:`AbstractSolver`: an equinox module, abstract base
-and final subclasses) from the tolerances, ``Method.build(rtol, atol)``. A solver declares what
-it needs and gives (:attr:`~AbstractSolver.residuals`, :attr:`~AbstractSolver.normal_equations`,
-:attr:`~AbstractSolver.traces`) and solves with one signature,
-``solver.solve(fn, z0, args, max_steps, groups, wide, large_residual, warm) -> Solution``, where
-``fn(z, args)`` are the residuals (flat, or ``(N, C)`` / channel-split for ``lm_fd``) and
-``groups`` the column groups of :func:`~matfit.fitting.lm.column_groups`. ``lm_fd``'s solver is
-:class:`~matfit.fitting.lm.LevenbergMarquardtFD`, composed of a Jacobian, a descent, a damping
-schedule and a termination. What fits do with a solver depends on those declarations, never on
-the method's name.
+Every method builds a solver (:class:`AbstractSolver`, an equinox module) from the tolerances,
+``Method.build(rtol, atol)``. A solver declares what it needs and gives (``residuals``,
+``normal_equations``, ``traces``) and solves with one signature, :meth:`AbstractSolver.solve`.
+What fits do with a solver depends on those declarations, never on the method's name.
 
 Examples
 --------
@@ -48,16 +42,18 @@ __all__ = ["Method", "METHODS", "DEFAULT_METHOD", "get_method", "AbstractSolver"
 
 
 class Solution(NamedTuple):
-    """What :meth:`AbstractSolver.solve` returns: the solution ``z``, the number of ``steps``,
-    whether a stopping test ended the loop (``converged``) and, for solvers that stream the
-    normal equations, their :class:`~matfit.fitting.lm.LMResult` (``lm``; None otherwise).
+    """What :meth:`AbstractSolver.solve` returns.
 
     Attributes
     ----------
     z : jax.Array (p,)
+        The solution.
     steps : jax.Array
+        The number of steps.
     converged : jax.Array of bool
+        Whether a stopping test ended the loop.
     lm : LMResult or None
+        The :class:`~matfit.fitting.lm.LMResult` of solvers that stream the normal equations.
 
     Examples
     --------
@@ -85,12 +81,12 @@ class AbstractSolver(eqx.Module):
 
     Subclasses are final and declare:
 
-    - :attr:`residuals`: ``"flat"`` (one vector) or ``"channels"`` (``(N, C)`` or one array per
+    - ``residuals``: ``"flat"`` (one vector) or ``"channels"`` (``(N, C)`` or one array per
       colour channel, for a grouped Jacobian);
-    - :attr:`normal_equations`: the solver returns ``F = 0.5 |r|^2``, ``J^T J`` and the
-      residuals at its solution (:class:`~matfit.fitting.lm.LMResult`), so that fits need not
-      evaluate them again, and it is cheap enough to solve a large table's subsample first;
-    - :attr:`traces`: :meth:`trace` records the objective at every step.
+    - ``normal_equations``: the solver returns ``F = 0.5 |r|^2``, ``J^T J`` and the residuals at
+      its solution (:class:`~matfit.fitting.lm.LMResult`), so that fits need not evaluate them
+      again, and it is cheap enough to solve a large table's subsample first;
+    - ``traces``: :meth:`trace` records the objective at every step.
 
     Parameters
     ----------
@@ -113,76 +109,26 @@ class AbstractSolver(eqx.Module):
 
     @abc.abstractmethod
     def solve(self, fn, z0, args, max_steps, groups=None, wide=False, large_residual=False, warm=None) -> Solution:
-        """Minimize ``0.5 |fn(z, args)|^2`` from ``z0``.
+        """Minimize ``0.5 |fn(z, args)|^2`` from ``z0`` in at most ``max_steps`` steps.
 
-        Parameters
-        ----------
-        fn : callable
-            ``fn(z, args)``: the residuals in the layout of :attr:`residuals`.
-        z0 : jax.Array (p,)
-            The start.
-        args : pytree
-            Passed through to ``fn``.
-        max_steps : int
-            Step limit.
-        groups : tuple, optional
-            ``(seeds, owner)`` of :func:`~matfit.fitting.lm.column_groups` (grouped Jacobians).
-        wide : bool, default False
-            Return ``J^T J`` summed in float64 when x64 is on (solvers with normal equations).
-        large_residual : bool, default False
-            One large fit solved alone (not under ``vmap``): ``lm_fd`` spends a little work per
-            iteration on fewer iterations of a large-residual problem, the line extrapolation
-            after steps that beat the model and the secant model of the Hessian's second-order
-            term (:class:`~matfit.fitting.lm.LevenbergMarquardtFD`); the other solvers ignore it.
-        warm : LMResult, optional
-            ``lm_fd``: the solution of the same problem on a subset of the rows, whose damping
-            and secant model start this solve; the other solvers ignore it.
-
-        Returns
-        -------
-        Solution
-
-        Examples
-        --------
-        >>> import jax.numpy as jnp
-        >>> from matfit.fitting.methods import METHODS
-        >>> sol = METHODS["lm"].build(1e-8, 1e-10).solve(lambda z, a: z - a, jnp.zeros(2), jnp.ones(2), 50)
-        >>> [round(float(v), 6) for v in sol.z]
-        [1.0, 1.0]
+        ``fn(z, args)`` gives the residuals in the layout of ``residuals``; ``groups`` is the
+        ``(seeds, owner)`` of :func:`~matfit.fitting.lm.column_groups`. ``wide`` and ``warm`` are
+        ``lm_fd``'s options (:func:`~matfit.fitting.lm.lm_fd`); ``large_residual`` (one large fit
+        solved alone, not under ``vmap``) turns on its ``extrapolate`` and ``secant``. Other solvers
+        ignore all three.
         """
 
     def trace(self, fn, z0, args, max_steps, record) -> jax.Array:
-        """Solve as :meth:`solve` does, calling ``record(step, objective)`` at every step (with the
-        objective at the last accepted iterate); returns the final objective.
-
-        Parameters
-        ----------
-        fn, z0, args, max_steps :
-            As for :meth:`solve` (flat residuals).
-        record : callable
-            ``record(step, objective)``, called from the compiled loop (``jax.debug.callback``).
-
-        Returns
-        -------
-        jax.Array
-            ``0.5 |r|^2`` at the solution.
-
-        Examples
-        --------
-        >>> import jax.numpy as jnp
-        >>> from matfit.fitting.methods import METHODS
-        >>> seen = []
-        >>> F = METHODS["gn"].build(1e-8, 1e-10).trace(lambda z, a: z - a, jnp.zeros(1), jnp.ones(1), 20,
-        ...                                            lambda n, v: seen.append(v))
-        >>> float(F) < 1e-12 and len(seen) > 0
-        True
+        """Solve flat residuals as :meth:`solve` does, calling ``record(step, objective)`` from the
+        compiled loop at every step (the objective at the last accepted iterate); returns the final
+        objective.
         """
         raise ParameterError(f"{type(self).__name__} does not report its iterates")
 
 
 class LMFDSolver(AbstractSolver):
-    """``lm_fd``: :class:`~matfit.fitting.lm.LevenbergMarquardtFD` (grouped finite-difference
-    Jacobian, streamed normal equations, boxed damped steps, Nielsen damping).
+    """``lm_fd``: :class:`~matfit.fitting.lm.LevenbergMarquardtFD` through
+    :func:`~matfit.fitting.lm.lm_fd`, which describes its options.
 
     Parameters
     ----------
@@ -370,45 +316,11 @@ class Method:
         return self.solver.residuals
 
     def build(self, rtol, atol) -> AbstractSolver:
-        """The solver with tolerances ``rtol``, ``atol``.
-
-        Parameters
-        ----------
-        rtol, atol : float
-            Stopping tolerances.
-
-        Returns
-        -------
-        AbstractSolver
-
-        Examples
-        --------
-        >>> from matfit.fitting.methods import get_method
-        >>> type(get_method("dogleg").build(1e-6, 1e-9)).__name__
-        'OptimistixLeastSquares'
-        """
+        """The solver with tolerances ``rtol``, ``atol``."""
         return self.solver(float(rtol), float(atol), **self.options)
 
     def serves(self, family: str, loss: str) -> bool:
-        """True when the method fits ``family`` under ``loss``.
-
-        Parameters
-        ----------
-        family : str
-            A family name.
-        loss : str
-            A loss name.
-
-        Returns
-        -------
-        bool
-
-        Examples
-        --------
-        >>> from matfit.fitting.methods import get_method
-        >>> get_method("lm_fd").serves("conductor", "l2")
-        True
-        """
+        """True when the method fits ``family`` under ``loss``."""
         return (self.families is None or family in self.families) and (self.losses is None or loss in self.losses)
 
 
@@ -451,12 +363,6 @@ def get_method(name, where="fit", family=None, loss=None) -> Method:
     ------
     matfit.ParameterError
         Naming the choices, when there is no such method or it does not serve ``family`` / ``loss``.
-
-    Examples
-    --------
-    >>> from matfit.fitting.methods import get_method
-    >>> get_method("lm_fd").residuals
-    'channels'
     """
     m = METHODS.get(name) if isinstance(name, str) else None
     if m is None:

@@ -1,20 +1,20 @@
 r"""Model choice: fit several families, compare information criteria and hold-out error.
 
 :func:`compare_models` splits the table at random into a fit part and a hold-out part
-(``holdout`` is the hold-out fraction), fits every family to the fit part with :func:`~matfit.fitting.fit`
-(two starting points, see :func:`robust_fit`) and reports, per family:
+(``holdout`` is the hold-out fraction), fits every family to the fit part with :func:`robust_fit`
+(two starting points) and reports, per family:
 
 * ``p``: free parameters; ``n``: residuals used by the fit (valid rows x channels);
-* ``aic = n log(RSS/n) + 2p`` and ``bic = n log(RSS/n) + p log n``: the Gaussian log-likelihood with
-  the variance profiled out, from the fit's residual sum of squares (the fit's own loss and weights,
-  so with ``sigma`` in the table they are chi-square residuals);
+* ``aic = n log(RSS/n) + 2p`` and ``bic = n log(RSS/n) + p log n``: the Gaussian log-likelihood
+  with the variance profiled out, from the fit's residual sum of squares (the fit's own loss and
+  weights, so with ``sigma`` in the table they are chi-square residuals);
 * ``holdout_rmse``: ``sqrt(mean r^2)`` of the same residuals (same loss, same weights) on the
   hold-out rows; ``holdout_rmse_raw``: plain RMSE of the BRDF values there, in 1/sr.
 
 Recommendation: among the families whose hold-out RMSE is within ``tol`` (default 2 %, relative)
-of the best one, the simplest, i.e. the one with the fewest free parameters (ties: the order of
-``models``). The hold-out error decides, not the AIC/BIC, because it does not depend on the
-Gaussian error model being right.
+of the best one, the one with the fewest free parameters (ties: the order of ``models``). The
+hold-out error decides, not the AIC/BIC, because it does not depend on the Gaussian error model
+being right.
 """
 
 from __future__ import annotations
@@ -48,10 +48,9 @@ class ModelComparison:
         ``aic``, ``bic``, ``holdout_rmse``, ``holdout_rmse_raw``, ``objective``, ``converged``,
         ``seconds`` (see the module docstring); a family whose fit failed has only ``model``,
         ``error`` (the message) and ``seconds``.
-    recommended : str or None
-        The family chosen (:func:`recommend`); None when every fit failed.
-    best : str or None
-        The family with the lowest hold-out RMSE.
+    recommended, best : str or None
+        The family chosen (:func:`recommend`; None when every fit failed) and the one with the
+        lowest hold-out RMSE.
     tol : float
         Relative hold-out tolerance of the recommendation.
     n_fit, n_holdout : int
@@ -68,10 +67,11 @@ class ModelComparison:
     >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8], [0.8, 0.0, 0.6]])
     >>> table = Table(wo=wo, wi=wo[[1, 2, 3, 0]], values=np.full((4, 3), 0.1))  # a Lambertian table
     >>> cmp = compare_models(table, models=("lambert",), starts=1)
-    >>> cmp.recommended, cmp.best, cmp.n_fit, cmp.n_holdout
-    ('lambert', 'lambert', 3, 1)
-    >>> sorted(cmp.results)
-    ['lambert']
+    >>> cmp.recommended, cmp.best, cmp.n_fit, cmp.n_holdout, sorted(cmp.results)
+    ('lambert', 'lambert', 3, 1, ['lambert'])
+    >>> row = cmp.rows[0]
+    >>> row["p"], row["n"], bool(row["holdout_rmse_raw"] < 1e-6)  # 3 albedos, 3 rows x 3 channels; exact
+    (3, 9, True)
     """
 
     rows: list
@@ -83,29 +83,8 @@ class ModelComparison:
     results: dict = field(default_factory=dict, repr=False)
 
     def summary(self) -> str:
-        """A text table of the comparison: one line per family and the recommendation.
-
-        Returns
-        -------
-        str
-            A header line (rows, tolerance), a column header, one line per family (``p``, AIC,
-            BIC, hold-out RMSE in the fit's loss and in 1/sr, the recommended one marked; or the
-            error of a failed fit) and a last line with the recommended and the best family.
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from matfit import Table
-        >>> from matfit.fitting import compare_models
-        >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8], [0.8, 0.0, 0.6]])
-        >>> table = Table(wo=wo, wi=wo[[1, 2, 3, 0]], values=np.full((4, 3), 0.1))  # a Lambertian table
-        >>> cmp = compare_models(table, models=("lambert",), starts=1)
-        >>> lines = cmp.summary().splitlines()
-        >>> lines[0]
-        'model comparison: 3 fit rows, 1 hold-out rows, tolerance 2%'
-        >>> lines[2].split()[:2], lines[2].endswith("<- recommended"), lines[-1]
-        (['lambert', '3'], True, '  recommended: lambert (best hold-out: lambert)')
-        """
+        """A text table: one line per family (``p``, AIC, BIC, hold-out RMSE in the loss and in 1/sr,
+        the recommended one marked; or a failed fit's error) and the recommended and best family."""
         lines = [f"model comparison: {self.n_fit} fit rows, {self.n_holdout} hold-out rows, tolerance {self.tol:.0%}",
                  f"  {'model':20s} {'p':>3s} {'AIC':>11s} {'BIC':>11s} {'hold-out RMSE':>13s} {'raw (1/sr)':>11s}"]
         for r in self.rows:
@@ -119,58 +98,34 @@ class ModelComparison:
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
-        """The comparison as JSON-serializable data (without the fit results).
-
-        Returns
-        -------
-        dict
-            ``rows``, ``recommended``, ``best``, ``tol``, ``n_fit`` and ``n_holdout``.
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from matfit import Table
-        >>> from matfit.fitting import compare_models
-        >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8], [0.8, 0.0, 0.6]])
-        >>> table = Table(wo=wo, wi=wo[[1, 2, 3, 0]], values=np.full((4, 3), 0.1))  # a Lambertian table
-        >>> cmp = compare_models(table, models=("lambert",), starts=1)
-        >>> import json
-        >>> d = json.loads(json.dumps(cmp.to_dict()))
-        >>> sorted(d), d["rows"][0]["model"], d["rows"][0]["p"]
-        (['best', 'n_fit', 'n_holdout', 'recommended', 'rows', 'tol'], 'lambert', 3)
-        """
+        """The comparison as JSON-serializable data, without the fit results."""
         return {"rows": self.rows, "recommended": self.recommended, "best": self.best, "tol": self.tol,
                 "n_fit": self.n_fit, "n_holdout": self.n_holdout}
 
 
 def recommend(rows, tol=DEFAULT_TOL):
-    """``(recommended, best)`` family names from comparison rows (see the module docstring).
+    """``(recommended, best)`` family names from comparison rows (the rule: module docstring).
 
     Parameters
     ----------
     rows : list of dict
-        Comparison rows with ``model``, ``p`` and ``holdout_rmse``; rows with an ``error`` or a
-        non-finite ``holdout_rmse`` are left out.
+        Rows with ``model``, ``p`` and ``holdout_rmse``; rows with an ``error`` or a non-finite
+        ``holdout_rmse`` are left out.
     tol : float, default :data:`DEFAULT_TOL`
-        Relative hold-out tolerance: the families within ``best * (1 + tol)`` are candidates.
+        The families within ``best * (1 + tol)`` are candidates.
 
     Returns
     -------
     recommended, best : str or None
-        The candidate with the fewest free parameters (ties: the first row) and the family with
-        the lowest hold-out RMSE (ties: the first row); ``(None, None)`` when no row is usable.
+        The candidate with the fewest free parameters and the lowest hold-out RMSE (ties: the first
+        row); ``(None, None)`` when no row is usable.
 
     Examples
     --------
     >>> rows = [{"model": "plastic", "p": 5, "holdout_rmse": 1.00},
-    ...         {"model": "lambert", "p": 3, "holdout_rmse": 1.01},
-    ...         {"model": "conductor", "p": 7, "holdout_rmse": 3.0}]
-    >>> recommend(rows)
-    ('lambert', 'plastic')
-    >>> recommend(rows, tol=0.001)
-    ('plastic', 'plastic')
-    >>> recommend([{"model": "plastic", "error": "did not converge"}])
-    (None, None)
+    ...         {"model": "lambert", "p": 3, "holdout_rmse": 1.01}]
+    >>> recommend(rows), recommend(rows, tol=0.001)
+    (('lambert', 'plastic'), ('plastic', 'plastic'))
     """
     ok = [(i, r) for i, r in enumerate(rows) if not r.get("error") and math.isfinite(r.get("holdout_rmse", math.nan))]
     if not ok:
@@ -185,24 +140,18 @@ def recommend(rows, tol=DEFAULT_TOL):
 def robust_fit(table, model, init=None, fixed=None, tied=(), **fit_kwargs):
     """:func:`~matfit.fitting.fit` from two starting points; the result of lower objective.
 
-    The first start is ``init`` or :func:`~matfit.fitting.initial_guess`; the second is a generic mid-range
-    point (:meth:`~matfit.fitting.Family.generic_start`: each parameter's ``generic`` value). Both runs share one
-    compiled solver, so the second costs only its iterations. This guards against the data-driven
-    guess landing in a poor basin (e.g. a conductor's ``k`` at its bound when a sparse table makes
-    the peak look wide).
+    The first start is ``init`` or :func:`~matfit.fitting.initial_guess`, the second a generic
+    mid-range point (:meth:`~matfit.fitting.Family.generic_start`). Both runs share one compiled
+    solver, so the second costs only its iterations. This guards against the data-driven guess
+    landing in a poor basin (e.g. a conductor's ``k`` at its bound when a sparse table makes the
+    peak look wide).
 
     Parameters
     ----------
-    table : matfit.Table
-        The measurements.
-    model : str
-        Family name (see :data:`matfit.fitting.FAMILIES`).
-    init : dict, optional
-        Starting values of the first start (default: :func:`~matfit.fitting.initial_guess`).
-    fixed : dict, optional
-        Parameters held at given values.
-    tied : sequence of str, default ()
-        Per-channel parameters shared by all channels.
+    table, model : matfit.Table, str
+        The measurements; a family name (see :data:`matfit.fitting.FAMILIES`).
+    init, fixed, tied : optional
+        Starting values of the first start, parameters held fixed, tied per-channel parameters.
     **fit_kwargs
         Passed to :func:`~matfit.fitting.fit` (``method``, ``loss``, ``starts``, ...).
 
@@ -218,16 +167,6 @@ def robust_fit(table, model, init=None, fixed=None, tied=(), **fit_kwargs):
         When ``table`` is not a :class:`~matfit.Table` or ``init`` does not fit the family.
     matfit.fitting.FitError
         The last start's error, when both starts fail.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit import Table
-    >>> from matfit.fitting import robust_fit
-    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
-    >>> r = robust_fit(Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1)), "lambert", starts=1)
-    >>> [round(float(a), 4) for a in r.params["albedo"]]  # pi * 0.1
-    [0.3142, 0.3142, 0.3142]
     """
     if not isinstance(table, Table):
         raise ParameterError(f"robust_fit: table must be a matfit.Table, got {type(table).__name__}")
@@ -271,22 +210,12 @@ def information_criteria(rss, n, p):
 
     Parameters
     ----------
-    rss : float
-        Residual sum of squares.
-    n : int
-        Number of residuals.
-    p : int
-        Number of free parameters.
+    rss, n, p : float, int, int
+        Residual sum of squares, number of residuals, number of free parameters.
 
     Returns
     -------
     tuple of float
-
-    Examples
-    --------
-    >>> from matfit.fitting.select import information_criteria
-    >>> [round(x, 3) for x in information_criteria(1.0, 100, 2)]
-    [-456.517, -451.307]
     """
     ll = n * math.log(max(float(rss), 1e-300) / n)
     return ll + 2 * p, ll + p * math.log(n)
@@ -294,18 +223,15 @@ def information_criteria(rss, n, p):
 
 def compare_models(table, models=("lambert", "conductor", "plastic"), holdout=0.2, seed=0, tol=DEFAULT_TOL,
                    **fit_kwargs) -> ModelComparison:
-    """Fit each family in ``models`` on a random ``1 - holdout`` of the rows and compare them.
-
-    Every family is fitted with :func:`robust_fit`; a family whose fit raises
-    :class:`~matfit.fitting.FitError` gets a row with the error and no result.
+    """Fit each family in ``models`` with :func:`robust_fit` on a random ``1 - holdout`` of the rows
+    and compare them; a family whose fit raises :class:`~matfit.fitting.FitError` gets a row with
+    the error and no result.
 
     Parameters
     ----------
     table : matfit.Table
-        The measurements.
     models : sequence of str or str, default ("lambert", "conductor", "plastic")
-        Family names (see :data:`matfit.fitting.FAMILIES`), distinct; a string is split at
-        commas.
+        Distinct family names (see :data:`matfit.fitting.FAMILIES`); a string is split at commas.
     holdout : float, default 0.2
         Fraction of the rows held out (``Table.split(1 - holdout, seed)``), in (0, 1).
     seed : int, default 0
@@ -313,9 +239,8 @@ def compare_models(table, models=("lambert", "conductor", "plastic"), holdout=0.
     tol : float, default 0.02
         Relative hold-out tolerance of the recommendation (``>= 0``).
     **fit_kwargs
-        Passed to :func:`matfit.fitting.fit` (``method``, ``loss``, ``starts``, ``fixed`` ...; a
-        ``fixed``, ``tied`` or ``init`` that names a parameter a family lacks is applied to the
-        families that have it).
+        Passed to :func:`matfit.fitting.fit`; a ``fixed``, ``tied`` or ``init`` that names a
+        parameter a family lacks is applied to the families that have it.
 
     Returns
     -------
@@ -329,20 +254,6 @@ def compare_models(table, models=("lambert", "conductor", "plastic"), holdout=0.
         an unknown family, or ``holdout`` or ``tol`` is out of range.
     matfit.fitting.FitError
         When the split leaves no valid row in the fit part or in the hold-out part.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit import Table
-    >>> from matfit.fitting import compare_models
-    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8], [0.8, 0.0, 0.6]])
-    >>> table = Table(wo=wo, wi=wo[[1, 2, 3, 0]], values=np.full((4, 3), 0.1))  # a Lambertian table
-    >>> cmp = compare_models(table, models=("lambert",), starts=1)
-    >>> row = cmp.rows[0]
-    >>> row["model"], row["p"], row["n"], cmp.recommended  # 3 albedos, 3 rows x 3 channels
-    ('lambert', 3, 9, 'lambert')
-    >>> bool(row["holdout_rmse_raw"] < 1e-6)  # the family explains the held-out row
-    True
     """
     if not isinstance(table, Table):
         raise ParameterError(f"compare_models: table must be a matfit.Table, got {type(table).__name__}")

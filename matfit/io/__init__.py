@@ -44,9 +44,8 @@ def load(path, *, return_native: bool = False, **options):
         Also return the format's own object (:class:`MerlBRDF`, :class:`RglBRDF`,
         :class:`AltaData`; None for .npz / .csv).
     **options
-        Passed to the native object's ``to_table`` (e.g. ``drop_invalid`` for MERL,
-        ``theta_d`` / ``phi_d`` for ALTA slices), or to :meth:`Table.load_csv`
-        (``channels``).
+        Passed to the native object's ``to_table`` (``drop_invalid`` for MERL, ``theta_d`` /
+        ``phi_d`` for ALTA slices) or to :meth:`Table.load_csv` (``channels``).
 
     Returns
     -------
@@ -84,13 +83,11 @@ def load(path, *, return_native: bool = False, **options):
 
 
 def save(path, table: Table) -> None:
-    """Write a Table as .npz or .csv, by extension.
+    """Write a Table as ``.npz`` (:meth:`Table.save_npz`) or ``.csv`` (:meth:`Table.save_csv`), by extension.
 
     Parameters
     ----------
     path : str or PathLike
-        The file to write, ending in ``.npz`` (:meth:`Table.save_npz`) or ``.csv``
-        (:meth:`Table.save_csv`).
     table : Table
 
     Raises
@@ -99,17 +96,6 @@ def save(path, table: Table) -> None:
         ``table`` is not a Table.
     DataFormatError
         Another extension.
-
-    Examples
-    --------
-    >>> import os, tempfile
-    >>> from matfit.io import load, save
-    >>> from matfit.table import Table
-    >>> t = Table(wo=[[0.0, 0.0, 1.0]], wi=[[0.0, 0.6, 0.8]], values=[[0.1, 0.2, 0.3]])
-    >>> with tempfile.TemporaryDirectory() as d:
-    ...     save(os.path.join(d, "t.npz"), t)
-    ...     load(os.path.join(d, "t.npz")).values.tolist()
-    [[0.1, 0.2, 0.3]]
     """
     if not isinstance(table, Table):
         raise ParameterError(f"save: table must be a matfit.Table, got {type(table).__name__} (call save(path, table))")

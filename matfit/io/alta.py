@@ -18,6 +18,14 @@ Geometry used for the Table (``wi`` = light, ``wo`` = viewer, phi_h = 0):
 * ``SPHERICAL_TL_PL_TV_PV``: (theta, phi) of light then view; ``CARTESIAN``: light xyz then view xyz.
 
 Outputs: ``RGB_COLOR`` (3 channels) or ``INV_STERADIAN`` / ``ENERGY`` (1 channel, mono), BRDF in 1/sr.
+In the Table, confidence columns of a one-output file become ``sigma`` (the half-width, or half the
+bounds' distance) unless some valid row has a zero width; rows below either horizon are kept invalid.
+
+Errors: :func:`read_alta` raises :class:`~matfit.errors.DataFormatError` naming the file, the field
+and the line for an empty, binary or non-UTF-8 file, a repeated header line, a missing or inconsistent
+``#DIM`` (1 <= n_in <= 6, 1 <= n_out <= 64) / ``#PARAM_IN`` / ``#PARAM_OUT`` / ``#VS``, no data, a data
+line of the wrong length or with non-numbers or non-finite numbers, cosines outside [0, 1], or
+CARTESIAN vectors with ``|norm - 1| > 1e-4``.
 """
 from __future__ import annotations
 
@@ -42,22 +50,16 @@ _HEADER_KEYS = {"DIM", "PARAM_IN", "PARAM_OUT", "VS", "FORMAT", "VERSION", "PREC
 
 @dataclass(frozen=True, eq=False)
 class AltaData:
-    """Parsed ALTA file: ``x`` (N, n_in) inputs, ``y`` (N, n_out) outputs, optional confidence columns.
-
-    Made by :func:`read_alta`; :meth:`to_table` turns it into a :class:`~matfit.table.Table`.
+    """A parsed ALTA file (:func:`read_alta`); :meth:`to_table` turns it into a :class:`~matfit.table.Table`.
 
     Attributes
     ----------
     header : dict
-        The header lines, key (``"DIM"``, ``"PARAM_IN"``, ...) -> the rest of the line.
-    param_in : str
-        The input parametrization, a key of :data:`PARAM_IN_DIMS`.
-    param_out : str
-        The output kind, a key of :data:`PARAM_OUT_CHANNELS`.
-    x : numpy.ndarray, (N, n_in) float64
-        The inputs of the data lines.
-    y : numpy.ndarray, (N, n_out) float64
-        The outputs: the BRDF in 1/sr.
+        Header key (``"DIM"``, ``"PARAM_IN"``, ...) -> the rest of its line.
+    param_in, param_out : str
+        Keys of :data:`PARAM_IN_DIMS` and :data:`PARAM_OUT_CHANNELS`.
+    x, y : numpy.ndarray, (N, n_in) and (N, n_out) float64
+        The data lines' inputs and outputs (the BRDF in 1/sr).
     ci : numpy.ndarray or None
         ``(N, 1)`` half-widths (``#VS 1``) or ``(N, 2)`` lower and upper bounds (``#VS 2``) of
         the first output; None without ``#VS``.
@@ -84,29 +86,7 @@ class AltaData:
     comments: list = field(default_factory=list)
 
     def directions(self, theta_d: float | None = None, phi_d: float | None = None):
-        """(wo, wi) for the rows, following the geometry documented in the module docstring.
-
-        Parameters
-        ----------
-        theta_d, phi_d : float, optional
-            Difference angles (radians) of the slices that do not give them: ``COS_TH`` and
-            ``RUSIN_TH`` default to ``theta_d = phi_d = 0``, ``RUSIN_TH_TD`` to
-            ``phi_d = pi/2``. Ignored where the file gives the angle.
-
-        Returns
-        -------
-        wo, wi : numpy.ndarray, (N, 3) float64
-            Unit directions to the viewer and to the light, one pair per data line.
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from matfit.io import read_alta
-        >>> d = read_alta(b"#DIM 1 1\\n#PARAM_IN RUSIN_TH\\n#PARAM_OUT INV_STERADIAN\\n0.3 1.0\\n")
-        >>> wo, wi = d.directions()                      # theta_d = 0: wi = wo = h
-        >>> np.allclose(wo, wi), round(float(np.arccos(wo[0, 2])), 6)
-        (True, 0.3)
-        """
+        """``(wo, wi)`` (N, 3) of the rows (geometry: the module docstring); ``theta_d``, ``phi_d`` override the slices' defaults."""
         x, p = self.x, self.param_in
         n = x.shape[0]
         if p in ("COS_TH", "RUSIN_TH"):
@@ -128,36 +108,7 @@ class AltaData:
         raise data_error("PARAM_IN", "one of " + ", ".join(PARAM_IN_DIMS), p, file=self.source)  # pragma: no cover
 
     def to_table(self, theta_d: float | None = None, phi_d: float | None = None) -> Table:
-        """The rows as a :class:`~matfit.table.Table` (directions as in :meth:`directions`).
-
-        One output is a ``"mono"`` table, three are ``"rgb"``. Confidence columns of a
-        one-output file become ``sigma`` (the half-width, or half the bounds' distance) unless
-        some valid row has a zero width. Rows with a direction at or below the horizon are
-        kept as invalid.
-
-        Parameters
-        ----------
-        theta_d, phi_d : float, optional
-            As for :meth:`directions`.
-
-        Returns
-        -------
-        Table
-            Its provenance names the file, the parametrization and the geometry used.
-
-        Raises
-        ------
-        DataFormatError
-            The rows do not make a valid table (naming the file).
-
-        Examples
-        --------
-        >>> from matfit.io import read_alta
-        >>> d = read_alta(b"#DIM 1 1\\n#PARAM_IN COS_TH\\n#PARAM_OUT INV_STERADIAN\\n#VS 1\\n1.0 0.5 0.05\\n")
-        >>> t = d.to_table()
-        >>> t.channels, t.sigma.tolist(), t.provenance["geometry"]
-        ('mono', [[0.05]], 'theta_h = acos(COS_TH), theta_d = 0.0, phi_d = 0.0, phi_h = 0')
-        """
+        """The rows as a Table (``"mono"`` or ``"rgb"``; ``sigma`` as in the module docstring); provenance names the geometry used."""
         wo, wi = self.directions(theta_d, phi_d)
         channels = "rgb" if self.y.shape[1] == 3 else "mono"
         sigma = None
@@ -180,7 +131,7 @@ class AltaData:
 
 
 def read_alta(path) -> AltaData:
-    """Read an ALTA text data file (path, or bytes); raises DataFormatError on malformed input.
+    """Read an ALTA text data file (errors: the module docstring).
 
     Parameters
     ----------
@@ -190,27 +141,11 @@ def read_alta(path) -> AltaData:
     Returns
     -------
     AltaData
-        The header, the inputs and outputs of the data lines, and any confidence columns.
-
-    Raises
-    ------
-    DataFormatError
-        An empty, binary or non-UTF-8 file, a missing or inconsistent ``#DIM`` /
-        ``#PARAM_IN`` / ``#PARAM_OUT`` / ``#VS``, a data line of the wrong length or with
-        non-finite numbers, cosines outside [0, 1] or non-unit CARTESIAN vectors; the message
-        names the file, the field and the line.
 
     References
     ----------
     L. Belcour, P. Barla, R. Pacanowski, "ALTA: A BRDF Analysis Library", 2014,
     https://alta.gforge.inria.fr.
-
-    Examples
-    --------
-    >>> from matfit.io import read_alta
-    >>> d = read_alta(b"#DIM 1 3\\n#PARAM_IN COS_TH\\n#PARAM_OUT RGB_COLOR\\n1.0 0.5 0.4 0.3\\n")
-    >>> d.y.shape, d.to_table().channels
-    ((1, 3), 'rgb')
     """
     raw, src, file = read_source(path)
     if not raw.strip():

@@ -2,13 +2,19 @@
 
 Layout (little-endian): ``int32[3]`` dims ``(90, 90, 180)`` for ``(theta_h, theta_d, phi_d)``, then
 ``3 * 90 * 90 * 180`` float64 values, channel-major (R block, G block, B block), flat index
-``phi_d + 180 * (theta_d + 90 * theta_h)``. A stored value times ``(1/1500, 1.15/1500, 1.66/1500)``
-is the BRDF in 1/sr. Negative cells (the database writes -1 below the horizon) are invalid.
+``phi_d + 180 * (theta_d + 90 * theta_h)``: ``FILE_SIZE`` = 12 + 3*90*90*180*8 bytes. A stored value
+times ``SCALE = (1/1500, 1.15/1500, 1.66/1500)`` is the BRDF in 1/sr. Negative cells (the database
+writes -1 below the horizon) are invalid.
 
 Cell rule (BRDFRead.cpp): ``theta_h`` index ``int(sqrt(theta_h / (pi/2) * 90 * 90))``, ``theta_d`` index
 ``int(theta_d / (pi/2) * 90)``, ``phi_d`` folded to ``[0, pi)`` by reciprocity then ``int(phi_d / pi * 180)``,
-each clamped to the grid. Cell centres: ``theta_h = ((i + 1/2) / 90)^2 pi/2``, ``theta_d = (j + 1/2) / 90 pi/2``,
-``phi_d = (k + 1/2) / 180 pi``.
+each clamped to the grid (NaN angles give 0). Cell centres: ``theta_h = ((i + 1/2) / 90)^2 pi/2``,
+``theta_d = (j + 1/2) / 90 pi/2``, ``phi_d = (k + 1/2) / 180 pi``.
+
+Errors: :func:`read_merl` raises :class:`~matfit.errors.DataFormatError` naming the file (or
+``<bytes>``) for an empty file, a header under 12 bytes, dims other than (90, 90, 180), a size other
+than ``FILE_SIZE`` (truncated, or trailing data), or NaN / Inf values (counted, the first cell named);
+:meth:`MerlBRDF.from_values` and :func:`write_merl` for a wrong shape (and non-finite values).
 """
 from __future__ import annotations
 
@@ -30,20 +36,12 @@ FILE_SIZE = 12 + 3 * _N * 8
 
 
 def cell_centres():
-    """(theta_h, theta_d, phi_d) 1-D arrays of the cell centres (90,), (90,), (180,).
+    """``(theta_h, theta_d, phi_d)``: the cell centres in radians, (90,), (90,), (180,).
 
     Returns
     -------
     theta_h, theta_d, phi_d : numpy.ndarray
-        Radians; ``theta_h`` on MERL's square-root grid.
-
-    Examples
-    --------
-    >>> th, td, pd = cell_centres()
-    >>> th.shape, td.shape, pd.shape
-    ((90,), (90,), (180,))
-    >>> [int(i) for i in cell_index(th[7], td[45], pd[100])]   # a centre falls in its own cell
-    [7, 45, 100]
+        ``theta_h`` on MERL's square-root grid.
     """
     th = ((np.arange(RES[0]) + 0.5) / RES[0]) ** 2 * (np.pi / 2)
     td = (np.arange(RES[1]) + 0.5) / RES[1] * (np.pi / 2)
@@ -52,23 +50,17 @@ def cell_centres():
 
 
 def cell_index(theta_h, theta_d, phi_d):
-    """MERL's cell indices (i_h, i_d, i_p) for half/difference angles (BRDFRead.cpp rule).
+    """MERL's cell indices of half/difference angles (the module's cell rule).
 
     Parameters
     ----------
     theta_h, theta_d, phi_d : array_like
-        Half and difference angles in radians; ``phi_d`` in (-pi, pi] is folded to [0, pi).
+        Radians; ``phi_d`` in (-pi, pi] is folded to [0, pi).
 
     Returns
     -------
     i_h, i_d, i_p : numpy.ndarray of int64
-        Indices clamped to the grid (NaN angles give 0).
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> [int(i) for i in cell_index(0.0, np.pi / 4, -np.pi / 2)]
-    [0, 45, 90]
+        Clamped to the grid.
     """
     theta_h = np.asarray(theta_h, dtype=np.float64)
     deg = theta_h / (np.pi / 2) * RES[0]
@@ -85,13 +77,13 @@ def cell_index(theta_h, theta_d, phi_d):
 
 @dataclass(frozen=True, eq=False)
 class MerlBRDF:
-    """A MERL table. ``raw`` (3, 90, 90, 180) float64 holds the stored numbers exactly as in the file.
+    """A MERL table: the stored numbers exactly as in the file.
 
     Attributes
     ----------
     raw : numpy.ndarray, (3, 90, 90, 180) float64
-        The stored numbers, indexed ``(channel, theta_h, theta_d, phi_d)``; the BRDF is
-        ``raw * SCALE`` (:attr:`values`), negative cells are invalid.
+        Indexed ``(channel, theta_h, theta_d, phi_d)``; the BRDF is ``raw * SCALE``
+        (:attr:`values`), negative cells are invalid.
     source : str or None
         The file read (None for bytes or a table built in memory).
 
@@ -124,29 +116,7 @@ class MerlBRDF:
 
     @classmethod
     def from_values(cls, values, valid=None, source=None) -> "MerlBRDF":
-        """Build from BRDF values (3, 90, 90, 180) in 1/sr; cells where ``valid`` is false are stored as -1.
-
-        Parameters
-        ----------
-        values : array_like, (3, 90, 90, 180)
-            Finite BRDF values in 1/sr.
-        valid : array_like of bool, (90, 90, 180), optional
-            Cells holding a measurement (default: all).
-        source : str, optional
-
-        Returns
-        -------
-        MerlBRDF
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from matfit.io import MerlBRDF
-        >>> valid = np.ones((90, 90, 180), bool); valid[0, 0, 0] = False
-        >>> m = MerlBRDF.from_values(np.full((3, 90, 90, 180), 0.3), valid)
-        >>> float(m.raw[0, 0, 0, 0]), int((~m.valid).sum())
-        (-1.0, 1)
-        """
+        """Build from finite BRDF values (3, 90, 90, 180) in 1/sr; cells where ``valid`` (90, 90, 180) is false are stored as -1."""
         v = np.asarray(values, dtype=np.float64)
         if v.shape != (3,) + RES:
             raise data_error("values", f"shape {(3,) + RES}", f"shape {v.shape}")
@@ -158,30 +128,9 @@ class MerlBRDF:
         return cls(np.ascontiguousarray(raw), source)
 
     def lookup(self, wo, wi):
-        """BRDF (N, 3) in 1/sr at direction pairs with MERL's cell rule, and a (N,) validity mask.
-
-        Pairs with either direction at or below the horizon, or landing in an invalid cell, are invalid
-        and get value 0.
-
-        Parameters
-        ----------
-        wo, wi : array_like, (N, 3) or (3,)
-            Unit directions to the viewer and to the light (MERL's incoming direction).
-
-        Returns
-        -------
-        values : numpy.ndarray, (N, 3) float64
-            The BRDF of the cells the pairs fall in (0 where invalid).
-        valid : numpy.ndarray, (N,) bool
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from matfit.io import MerlBRDF
-        >>> m = MerlBRDF.from_values(np.full((3, 90, 90, 180), 0.3))
-        >>> values, ok = m.lookup([[0.0, 0.6, 0.8], [0.0, 0.0, -1.0]], [[0.0, -0.6, 0.8], [0.0, 0.0, 1.0]])
-        >>> np.round(values, 6).tolist(), ok.tolist()
-        ([[0.3, 0.3, 0.3], [0.0, 0.0, 0.0]], [True, False])
+        """``(values (N, 3), valid (N,))``: the BRDF in 1/sr of the cells direction pairs fall in (MERL's
+        cell rule; ``wi`` is MERL's incoming direction); pairs below either horizon or in an invalid cell
+        are invalid, with value 0.
         """
         wo = np.atleast_2d(np.asarray(wo, dtype=np.float64))
         wi = np.atleast_2d(np.asarray(wi, dtype=np.float64))
@@ -193,29 +142,10 @@ class MerlBRDF:
         return vals, ok
 
     def to_table(self, drop_invalid: bool = False) -> Table:
-        """A Table at the 90*90*180 cell centres with phi_h = 0 (rows in file order: theta_h, theta_d, phi_d).
+        """An ``"rgb"`` Table at the 90*90*180 cell centres with phi_h = 0, rows in file order.
 
-        ``wi`` is MERL's incoming (light) direction, i.e. the difference vector rotated by theta_h about y;
-        ``wo`` its mirror about the half vector. Invalid cells keep their row with value 0 and valid=False,
-        unless ``drop_invalid``.
-
-        Parameters
-        ----------
-        drop_invalid : bool, default False
-            Leave the invalid cells out instead of keeping them as invalid rows.
-
-        Returns
-        -------
-        Table
-            ``"rgb"``, 90 * 90 * 180 rows (fewer with ``drop_invalid``).
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from matfit.io import MerlBRDF
-        >>> t = MerlBRDF.from_values(np.full((3, 90, 90, 180), 0.3)).to_table()
-        >>> len(t), t.channels, t.provenance["format"]
-        (1458000, 'rgb', 'merl')
+        ``wi`` is the difference vector rotated by theta_h about y, ``wo`` its mirror about the half
+        vector. Invalid cells keep their row (value 0, valid=False) unless ``drop_invalid``.
         """
         th, td, pd = cell_centres()
         TH, TD, PD = np.meshgrid(th, td, pd, indexing="ij")
@@ -231,36 +161,17 @@ class MerlBRDF:
 
 
 def read_merl(path) -> MerlBRDF:
-    """Read a MERL ``.binary`` file (path or bytes) with strict checks; raises DataFormatError.
+    """Read a MERL ``.binary`` file with strict checks (errors: the module docstring).
 
     Parameters
     ----------
     path : str, PathLike or bytes
-        The ``.binary`` file, or its contents.
+        The file, or its contents.
 
     Returns
     -------
     MerlBRDF
         ``raw`` read-only, exactly the file's numbers.
-
-    Raises
-    ------
-    DataFormatError
-        An empty or truncated file, dimensions other than (90, 90, 180), a size other than
-        ``FILE_SIZE`` bytes (trailing data included) or NaN / Inf values; the message names
-        the file.
-
-    Examples
-    --------
-    >>> import os, tempfile
-    >>> import numpy as np
-    >>> from matfit.io import MerlBRDF, read_merl, write_merl
-    >>> m = MerlBRDF.from_values(np.full((3, 90, 90, 180), 0.3))
-    >>> with tempfile.TemporaryDirectory() as d:
-    ...     write_merl(os.path.join(d, "grey.binary"), m)
-    ...     back = read_merl(os.path.join(d, "grey.binary"))
-    >>> bool(np.array_equal(back.raw, m.raw)), back.raw.flags.writeable
-    (True, False)
     """
     buf, src, file = read_source(path, FILE_SIZE + 1)
     if len(buf) == 0:
@@ -290,24 +201,8 @@ def write_merl(path, brdf: MerlBRDF) -> None:
     Parameters
     ----------
     path : str or PathLike
-        The file to write (replaced if present).
+        Replaced if present.
     brdf : MerlBRDF
-
-    Raises
-    ------
-    DataFormatError
-        ``brdf.raw`` is not of shape (3, 90, 90, 180).
-
-    Examples
-    --------
-    >>> import os, tempfile
-    >>> import numpy as np
-    >>> from matfit.io import MerlBRDF, write_merl
-    >>> from matfit.io.merl import FILE_SIZE
-    >>> with tempfile.TemporaryDirectory() as d:
-    ...     write_merl(os.path.join(d, "grey.binary"), MerlBRDF.from_values(np.full((3, 90, 90, 180), 0.3)))
-    ...     os.path.getsize(os.path.join(d, "grey.binary")) == FILE_SIZE
-    True
     """
     raw = np.asarray(brdf.raw, dtype=np.float64)
     if raw.shape != (3,) + RES:

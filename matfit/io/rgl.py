@@ -24,6 +24,16 @@ interpolated over ``phi_i, theta_i``) takes it to the sample space where the ``r
 bilinearly interpolated (and linearly over incidence angles); the result, clipped at 0, is multiplied by
 ``ndf(u_m) / (4 sigma(u_i))`` (when ``jacobian`` is set) to give ``f_r * cos(theta_o)``. ``wi`` (light) is
 the file's incidence direction. :meth:`RglBRDF.eval` divides by ``cos(theta_o)`` to return the BRDF in 1/sr.
+
+Errors (:class:`~matfit.errors.DataFormatError`, naming the file or ``<bytes>`` and the field).
+:func:`read_tensor_file`: an empty or truncated file, a wrong magic or version, a field count too
+large for the file, a field name that is not non-empty printable ASCII, an unknown type code, more
+than 16 dimensions, data outside the file, a repeated name. :class:`RglBRDF`: a missing field, a
+wrong type code or shape, NaN / Inf, fewer than 2 ``theta_i`` or 2 x 2 grid nodes, angles not
+strictly increasing or out of range, negative densities or non-positive ``sigma``, wavelengths not
+increasing and positive, an anisotropic file without the full 2 pi azimuth range, an all-zero
+``vndf`` slice, a ``valid`` field that is not uint8 of one entry per node.
+:func:`tensor_file_bytes`: a dtype outside :data:`DTYPES`.
 """
 from __future__ import annotations
 
@@ -51,18 +61,14 @@ _MAX_NDIM = 16
 
 @dataclass(frozen=True)
 class TensorFile:
-    """Parsed tensor file: ``fields`` maps name -> read-only numpy array (C order, native dtype).
-
-    ``tf[name]`` is ``tf.fields[name]``; ``name in tf`` tells whether the file has the field.
+    """A parsed tensor file; ``tf[name]`` is ``tf.fields[name]``, ``name in tf`` tells whether it has the field.
 
     Attributes
     ----------
     fields : dict
-        Field name -> read-only array of the file's shape and dtype (:data:`DTYPES`).
-    dtype_codes : dict
-        Field name -> the file's type code (1..11).
-    offsets : dict
-        Field name -> byte offset of its data in the file.
+        Field name -> read-only array of the file's shape and dtype (:data:`DTYPES`), C order.
+    dtype_codes, offsets : dict
+        Field name -> the file's type code (1..11), and the byte offset of its data.
     source : str or None
         The file read (None for bytes).
 
@@ -88,7 +94,7 @@ class TensorFile:
 
 
 def read_tensor_file(path) -> TensorFile:
-    """Parse a tensor file (path or bytes) with strict bounds checks; raises DataFormatError.
+    """Parse a tensor file with strict bounds checks (errors: the module docstring).
 
     Parameters
     ----------
@@ -99,28 +105,6 @@ def read_tensor_file(path) -> TensorFile:
     -------
     TensorFile
         Every field, as a read-only view of the bytes read.
-
-    Raises
-    ------
-    DataFormatError
-        An empty or truncated file, a wrong magic or version, an impossible field count, a
-        field name that is not printable ASCII, an unknown type code, more than 16
-        dimensions, data outside the file or a repeated field name; the message names the
-        file and the field.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit.io import read_tensor_file
-    >>> from matfit.io.rgl import tensor_file_bytes
-    >>> tf = read_tensor_file(tensor_file_bytes({"jacobian": np.ones(1, np.uint8), "ndf": np.ones((2, 8), np.float32)}))
-    >>> sorted(tf.fields), tf["ndf"].shape, tf["ndf"].dtype.name, tf["ndf"].flags.writeable
-    (['jacobian', 'ndf'], (2, 8), 'float32', False)
-    >>> from matfit.io.rgl import MAGIC
-    >>> read_tensor_file(MAGIC + bytes([2, 0, 0, 0, 0, 0]))
-    Traceback (most recent call last):
-    ...
-    matfit.errors.DataFormatError: <bytes>: field 'version': expected 1.0, found 2.0
     """
     buf, src, file = read_source(path)
     size = len(buf)
@@ -182,35 +166,14 @@ def read_tensor_file(path) -> TensorFile:
 
 
 def write_tensor_file(path, fields: dict) -> None:
-    """Write numpy arrays as a tensor file (8-byte aligned data after the header).
+    """Write numpy arrays as a tensor file (:func:`tensor_file_bytes`).
 
     Parameters
     ----------
     path : str or PathLike
-        The file to write (replaced if present).
+        Replaced if present.
     fields : dict
-        Field name (ASCII) -> array of a dtype in :data:`DTYPES`, stored little-endian in C
-        order.
-
-    Raises
-    ------
-    DataFormatError
-        An array of a dtype that tensor files cannot hold (naming ``path`` and the field).
-
-    See Also
-    --------
-    tensor_file_bytes : the same file as bytes.
-
-    Examples
-    --------
-    >>> import os, tempfile
-    >>> import numpy as np
-    >>> from matfit.io import read_tensor_file, write_tensor_file
-    >>> with tempfile.TemporaryDirectory() as d:
-    ...     write_tensor_file(os.path.join(d, "t.bsdf"), {"wavelengths": np.array([450.0, 550.0])})
-    ...     tf = read_tensor_file(os.path.join(d, "t.bsdf"))
-    >>> tf["wavelengths"].tolist(), tf.dtype_codes["wavelengths"]
-    ([450.0, 550.0], 11)
+        Field name (ASCII) -> array of a dtype in :data:`DTYPES`.
     """
     data = tensor_file_bytes(fields, file=path)
     with open(path, "wb") as fh:
@@ -218,33 +181,18 @@ def write_tensor_file(path, fields: dict) -> None:
 
 
 def tensor_file_bytes(fields: dict, file=None) -> bytes:
-    """The bytes of a tensor file holding ``fields`` (what :func:`write_tensor_file` writes).
+    """The bytes of a tensor file holding ``fields``: header, then each field little-endian in C order at an 8-byte aligned offset.
 
     Parameters
     ----------
     fields : dict
         Field name (ASCII) -> array of a dtype in :data:`DTYPES`.
     file : str or PathLike, optional
-        The file named in error messages.
+        Named in error messages.
 
     Returns
     -------
     bytes
-        The header, then every field's data at an 8-byte aligned offset;
-        :func:`read_tensor_file` and :func:`read_rgl` read it back.
-
-    Raises
-    ------
-    DataFormatError
-        An array of a dtype that tensor files cannot hold.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit.io.rgl import MAGIC, tensor_file_bytes
-    >>> data = tensor_file_bytes({"jacobian": np.ones(1, np.uint8)})
-    >>> data[:12] == MAGIC, len(data) % 8
-    (True, 0)
     """
     path = file
     items = []
@@ -270,33 +218,24 @@ def tensor_file_bytes(fields: dict, file=None) -> bytes:
 
 
 def uniform_fields(value=0.5, n_theta: int = 4, nodes: int = 4, description: str = "uniform") -> dict:
-    """The fields of a small isotropic RGB measurement whose tables are all constant.
+    """The fields of a small isotropic RGB measurement whose tables are constant, for tests and examples.
 
     Every density (``ndf``, ``sigma``, ``vndf``, ``luminance``) is 1 and every ``rgb`` node is
-    ``value``, so ``f_r cos(theta_o) = value / 4`` wherever both directions are above the
-    horizon. For tests and examples of the reader; the result is no physical material.
+    ``value``, so ``f_r cos(theta_o) = value / 4`` wherever both directions are above the horizon.
 
     Parameters
     ----------
     value : float, default 0.5
-        The ``rgb`` table's value.
     n_theta : int, default 4
         Incidence angles, evenly spaced over [0, pi/2] (one azimuth).
     nodes : int, default 4
-        The ``rgb`` and ``luminance`` grids are ``nodes x nodes``; the ``vndf`` grid is twice as fine.
+        The ``rgb`` and ``luminance`` grids are ``nodes x nodes``; ``vndf`` is twice as fine.
     description : str, default "uniform"
 
     Returns
     -------
     dict
         Field name -> array, for :func:`tensor_file_bytes` or :func:`write_tensor_file`.
-
-    Examples
-    --------
-    >>> from matfit.io.rgl import read_rgl, tensor_file_bytes, uniform_fields
-    >>> b = read_rgl(tensor_file_bytes(uniform_fields(0.5)))
-    >>> b.eval_cos([0.0, 0.0, 1.0], [0.0, 0.0, 1.0]).tolist()
-    [[0.125, 0.125, 0.125]]
     """
     n2 = 2 * nodes
     return {"description": np.frombuffer(description.encode("utf-8"), np.uint8),
@@ -470,22 +409,20 @@ _GRAZING_COS = 1e-3  # table rows with cos(theta) below this (about 89.94 deg) a
 
 
 class RglBRDF:
-    """An RGL measured isotropic (or anisotropic, reduction 1) BRDF; see the module docstring.
+    """An RGL measured isotropic (or anisotropic, reduction 1) BRDF; evaluation as in the module docstring.
 
-    Every field is checked on construction (names, type codes, shapes, finite values, increasing
-    angles, positive densities); :func:`read_rgl` reads a file into one.
+    Every field is checked on construction (errors: the module docstring).
 
     Parameters
     ----------
     tf : TensorFile
-        The parsed ``.bsdf`` file.
+        The parsed ``.bsdf`` file (:func:`read_rgl` reads one).
 
     Attributes
     ----------
     source : str or None
-        The file read.
     description : str
-        The material's description (the ``description`` field).
+        The material (the ``description`` field).
     channels : str or tuple of float
         ``"rgb"``, or the wavelengths in nm of a ``spectra`` file.
     theta_i, phi_i : numpy.ndarray
@@ -497,19 +434,13 @@ class RglBRDF:
     spectral_data : numpy.ndarray, (n_phi, n_theta, C, rows, cols) float64
         The ``rgb`` or ``spectra`` table.
     ndf, sigma : numpy.ndarray, 2-D float64
-        The ``ndf`` and ``sigma`` tables, indexed ``(phi, theta)`` in unit coordinates.
+        Indexed ``(phi, theta)`` in unit coordinates.
     vndf, luminance : numpy.ndarray, (n_phi, n_theta, rows, cols) float64
-        The ``vndf`` and ``luminance`` densities as stored (not normalized); the reader's warps
-        and :class:`matfit.models.MeasuredRGL` are built from them.
+        As stored (not normalized); the warps and :class:`matfit.models.MeasuredRGL` are built from them.
     grid_shape : tuple
         ``(rows, cols)`` of the sample-space grid.
     node_valid : numpy.ndarray of bool or None
         The file's ``valid`` field as a ``(rows, cols)`` grid, when present.
-
-    Raises
-    ------
-    DataFormatError
-        A missing or malformed field, naming the file and the field.
 
     References
     ----------
@@ -518,10 +449,14 @@ class RglBRDF:
 
     Examples
     --------
+    A constant measurement (:func:`uniform_fields`) has ``f_r cos(theta_o) = value / 4``:
+
     >>> from matfit.io.rgl import read_rgl, tensor_file_bytes, uniform_fields
     >>> grey = read_rgl(tensor_file_bytes(uniform_fields(0.5, description="grey")))
     >>> grey.description, grey.channels, grey.isotropic, grey.grid_shape
     ('grey', 'rgb', True, (4, 4))
+    >>> grey.eval_cos([0.0, 0.0, 1.0], [0.0, 0.0, 1.0]).tolist()
+    [[0.125, 0.125, 0.125]]
     """
 
     def __init__(self, tf: TensorFile):
@@ -620,25 +555,7 @@ class RglBRDF:
         return len(self._chan_params)
 
     def eval_cos(self, wo, wi) -> np.ndarray:
-        """``f_r(wi, wo) * cos(theta_o)`` (N, C) as powitacq's ``eval(wi, wo)``; 0 below either horizon.
-
-        Parameters
-        ----------
-        wo, wi : array_like, (N, 3) or (3,)
-            Unit directions to the viewer and to the light (the file's incidence).
-
-        Returns
-        -------
-        numpy.ndarray, (N, C) float64
-            The cosine-weighted BRDF, clipped at 0.
-
-        Examples
-        --------
-        >>> from matfit.io.rgl import read_rgl, tensor_file_bytes, uniform_fields
-        >>> grey = read_rgl(tensor_file_bytes(uniform_fields(0.5, description="grey")))
-        >>> grey.eval_cos([[0.0, 0.6, 0.8], [0.0, 0.6, -0.8]], [[0.0, -0.6, 0.8], [0.0, -0.6, 0.8]]).tolist()
-        [[0.125, 0.125, 0.125], [0.0, 0.0, 0.0]]
-        """
+        """``f_r(wi, wo) * cos(theta_o)`` (N, C), clipped at 0, as powitacq's ``eval(wi, wo)``; 0 below either horizon."""
         wo = np.atleast_2d(np.asarray(wo, dtype=np.float64))
         wi = np.atleast_2d(np.asarray(wi, dtype=np.float64))
         active = (wi[:, 2] > 0) & (wo[:, 2] > 0)
@@ -661,25 +578,7 @@ class RglBRDF:
         return out
 
     def eval(self, wo, wi) -> np.ndarray:
-        """The BRDF in 1/sr (N, C): ``eval_cos / cos(theta_o)``; 0 below either horizon.
-
-        Parameters
-        ----------
-        wo, wi : array_like, (N, 3) or (3,)
-            Unit directions to the viewer and to the light.
-
-        Returns
-        -------
-        numpy.ndarray, (N, C) float64
-            The BRDF in 1/sr, without the cosine.
-
-        Examples
-        --------
-        >>> from matfit.io.rgl import read_rgl, tensor_file_bytes, uniform_fields
-        >>> grey = read_rgl(tensor_file_bytes(uniform_fields(0.5, description="grey")))
-        >>> grey.eval([0.0, 0.6, 0.8], [0.0, -0.6, 0.8]).round(6).tolist()  # 0.125 / cos(theta_o)
-        [[0.15625, 0.15625, 0.15625]]
-        """
+        """The BRDF in 1/sr (N, C): ``eval_cos / cos(theta_o)``; 0 below either horizon."""
         wo = np.atleast_2d(np.asarray(wo, dtype=np.float64))
         fc = self.eval_cos(wo, wi)
         cos_o = wo[:, 2]
@@ -700,31 +599,10 @@ class RglBRDF:
         return wo, wi, wm, u_wm, pdf
 
     def albedo(self, theta_i: float, phi_i: float = 0.0, n: int = 64) -> np.ndarray:
-        """Directional-hemispherical reflectance (C,) at incidence ``theta_i``: the integral of
-        ``f cos(theta_o)`` over the outgoing hemisphere, by a midpoint rule on an ``n x n`` grid of the
-        VNDF sample space (i.e. importance sampling with stratified points).
+        """Directional-hemispherical reflectance (C,) at incidence ``(theta_i, phi_i)`` (radians).
 
-        Parameters
-        ----------
-        theta_i : float
-            Polar angle of incidence in radians.
-        phi_i : float, default 0
-            Azimuth of incidence in radians.
-        n : int, default 64
-            Points per side of the grid.
-
-        Returns
-        -------
-        numpy.ndarray, (C,) float64
-
-        Examples
-        --------
-        >>> from matfit.io.rgl import read_rgl, tensor_file_bytes, uniform_fields
-        >>> grey = read_rgl(tensor_file_bytes(uniform_fields(0.5, description="grey")))
-        >>> import numpy as np
-        >>> a = grey.albedo(np.radians(30.0), n=16)
-        >>> a.shape, bool(np.all(a == a[0]) and 0 < a[0] < 1)
-        ((3,), True)
+        The integral of ``f cos(theta_o)`` over the outgoing hemisphere by a midpoint rule on an
+        ``n x n`` grid of the VNDF sample space (importance sampling with stratified points).
         """
         g = (np.arange(n) + 0.5) / n
         u = np.stack(np.meshgrid(g, g, indexing="xy"), -1).reshape(-1, 2)
@@ -739,37 +617,15 @@ class RglBRDF:
 
     # -------------------------------------------------------------------------------------- table
     def stored_samples(self, use_file_valid: bool = True):
-        """The file's own samples at the measured incidences: (wo, wi, f (N, C) in 1/sr, valid).
+        """The file's own samples at the measured incidences: ``(wo, wi, f (N, C) in 1/sr, valid)``.
 
-        For every measured (phi_i, theta_i) and every node of the ``rgb``/``spectra`` grid, the node's
-        sample-space position is warped by the VNDF to a half vector and reflected to ``wo``; the value is
-        the stored node value (clipped at 0) times ``ndf / (4 sigma)`` divided by ``cos(theta_o)``.
-        Rows are marked invalid when either direction is within 0.06 deg of the horizon (this drops the
-        theta_i = 90 deg incidence) and, with ``use_file_valid``, where the file's ``valid`` field is 0. (The RGL
-        loaders ignore that field and render all nodes; its pattern - e.g. every other node for the diffuse
-        paper - suggests it marks the nodes actually measured. Pass ``use_file_valid=False`` to keep all.)
-
-        Parameters
-        ----------
-        use_file_valid : bool, default True
-            Mark the nodes the file's ``valid`` field flags 0 as invalid.
-
-        Returns
-        -------
-        wo, wi : numpy.ndarray, (N, 3) float64
-            ``N = n_phi * n_theta * rows * cols``: incidence-major, then the grid's nodes.
-        f : numpy.ndarray, (N, C) float64
-            The BRDF in 1/sr (0 on invalid rows).
-        valid : numpy.ndarray, (N,) bool
-
-        Examples
-        --------
-        >>> from matfit.io.rgl import read_rgl, tensor_file_bytes, uniform_fields
-        >>> grey = read_rgl(tensor_file_bytes(uniform_fields(0.5, description="grey")))
-        >>> import numpy as np
-        >>> wo, wi, f, valid = grey.stored_samples()
-        >>> f.shape, int(valid.sum()), bool(np.allclose(f[valid] * wo[valid, 2:], 0.125))
-        ((64, 3), 32, True)
+        For every measured (phi_i, theta_i) (incidence-major) and every node of the ``rgb``/``spectra``
+        grid, the node's sample-space position is warped by the VNDF to a half vector and reflected to
+        ``wo``; the value is the stored node value (clipped at 0) times ``ndf / (4 sigma)`` divided by
+        ``cos(theta_o)``. Rows are invalid (value 0) when either direction is within 0.06 deg of the
+        horizon (this drops the theta_i = 90 deg incidence) and, with ``use_file_valid``, where the file's
+        ``valid`` field is 0. (The RGL loaders ignore that field and render all nodes; its pattern - e.g.
+        every other node for the diffuse paper - suggests it marks the nodes actually measured.)
         """
         ny, nx = self.grid_shape
         gy, gx = np.meshgrid(np.arange(ny) / (ny - 1), np.arange(nx) / (nx - 1), indexing="ij")
@@ -790,27 +646,7 @@ class RglBRDF:
         return np.concatenate(WO), np.concatenate(WI), np.concatenate(F), np.concatenate(V)
 
     def to_table(self, use_file_valid: bool = True) -> Table:
-        """A Table of the stored samples (see :meth:`stored_samples`); grazing rows and nodes flagged
-        invalid in the file's ``valid`` field are kept with ``valid=False`` and value 0.
-
-        Parameters
-        ----------
-        use_file_valid : bool, default True
-            As for :meth:`stored_samples`.
-
-        Returns
-        -------
-        Table
-            Its channels are :attr:`channels`; its provenance names the file and the material.
-
-        Examples
-        --------
-        >>> from matfit.io.rgl import read_rgl, tensor_file_bytes, uniform_fields
-        >>> grey = read_rgl(tensor_file_bytes(uniform_fields(0.5, description="grey")))
-        >>> t = grey.to_table()
-        >>> len(t), t.n_valid, t.provenance["material"]
-        (64, 32, 'grey')
-        """
+        """A Table of :meth:`stored_samples` (invalid rows kept with ``valid=False``); provenance names the file and material."""
         wo, wi, f, ok = self.stored_samples(use_file_valid)
         prov = {"format": "rgl-tensor", "source": self.source, "material": self.description,
                 "instrument": "RGL gonio-photometer (Dupuy & Jakob 2018)",
@@ -820,29 +656,15 @@ class RglBRDF:
 
 
 def read_rgl(path) -> RglBRDF:
-    """Read and validate an RGL ``.bsdf`` file (path or bytes); raises DataFormatError.
+    """Read and validate an RGL ``.bsdf`` file (errors: the module docstring).
 
     Parameters
     ----------
     path : str, PathLike or bytes
-        The ``.bsdf`` file (e.g. ``paper_white_rgb.bsdf`` of the RGL material database), or its
-        contents.
+        The file (e.g. ``paper_white_rgb.bsdf`` of the RGL material database), or its contents.
 
     Returns
     -------
     RglBRDF
-
-    Raises
-    ------
-    DataFormatError
-        A malformed container (:func:`read_tensor_file`) or BRDF field (:class:`RglBRDF`).
-
-    Examples
-    --------
-    >>> from matfit.io import read_rgl
-    >>> read_rgl(b"")
-    Traceback (most recent call last):
-    ...
-    matfit.errors.DataFormatError: <bytes>: field 'file': expected a tensor file, found an empty file
     """
     return RglBRDF(read_tensor_file(path))

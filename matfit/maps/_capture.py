@@ -34,9 +34,16 @@ with one message naming the file and the field.
 
 Large captures. The measurements of an H x W capture of N images take ``H W N (4 C + 1)`` bytes
 (4.8 GB of values for 4096 x 4096 x 24 RGB images, as much again for each of ``wo`` and ``wi`` in
-``"positions"`` geometry). ``load_capture(path, out=folder)`` writes them to ``.npy`` files a band
-of rows at a time, reading all the images together by rows, and returns memory maps of them:
-memory stays bounded by a band, not the capture.
+``"positions"`` geometry). ``load_capture(path, out=folder)`` writes them to C-order ``.npy`` files
+(``values``, ``valid``, and ``wo``, ``wi`` in positions geometry; replaced if present) a band of
+rows (about 32 MiB) at a time with ``os.pwrite``, reading all the images together by rows, and
+returns read-only memory maps of them, which :func:`matfit.maps.fit_map` reads a chunk at a time:
+memory stays bounded by a band plus the decoders' buffers, not the capture, and the numbers equal
+the in-memory load's bit for bit. Files are written as ``NAME.partial`` and renamed when all are
+complete; on any error they are removed and the error is the in-memory load's (every image header
+is checked before any file is started, so with several faults the two may name different ones
+first). Bounded for non-interlaced PNG and EXR (OpenEXR's ``InputFile``); an interlaced PNG is
+decoded whole by pypng and holds about twice its codes in memory during the load.
 """
 from __future__ import annotations
 
@@ -423,7 +430,7 @@ def _measure(g, j, pixels, info, color_space, flat, points):
 
 
 def load_capture(path, out=None) -> Capture:
-    """Load a capture folder as BRDF measurements per texel.
+    """Load a capture folder as BRDF measurements per texel (the module docstring's format and radiometry).
 
     Parameters
     ----------
@@ -431,56 +438,33 @@ def load_capture(path, out=None) -> Capture:
         The capture folder (holding ``capture.json`` or ``capture.toml``) or the document itself.
     out : str or Path, optional
         A folder (created if missing) to write the measurements to instead of holding them in
-        memory: ``values.npy`` and ``valid.npy``, and in ``"positions"`` geometry ``wo.npy`` and
-        ``wi.npy`` (C-order ``.npy`` files, replaced if present). The images are read together a
-        band of rows at a time and each band is written with ``os.pwrite``, so memory stays near
-        one band (about 32 MiB) plus the decoders' buffers, whatever the image size; the returned
-        arrays are read-only ``numpy.memmap`` views of the files (``np.load(..., mmap_mode="r")``),
-        which :func:`matfit.maps.fit_map` reads a chunk at a time. The numbers are those of the
-        in-memory load, bit for bit. Files are written as ``NAME.partial`` and renamed when all
-        are complete; on any error the partial files are removed and the error is the one the
-        in-memory load raises (every image's header is checked before the files are started).
-        Memory is bounded for non-interlaced PNG and for EXR (read by scanline ranges through
-        OpenEXR's ``InputFile``); an interlaced PNG is decoded whole by pypng, so each one holds
-        about twice its codes in memory during the load.
+        memory (module docstring, "Large captures").
 
     Returns
     -------
     Capture
-        ``values`` (H, W, N, C) float32 and ``valid`` (H, W, N), with ``wo``/``wi`` of shape
-        (N, 3) (``"directions"``) or (H, W, N, 3) (``"positions"``); memory maps of the files
-        in ``out`` when given (``wo``/``wi`` of shape (N, 3) stay in memory).
+        ``values`` (H, W, N, C) float32 and ``valid`` (H, W, N), ``wo``/``wi`` (N, 3)
+        (``"directions"``) or (H, W, N, 3) (``"positions"``); with ``out``, memory maps of its
+        files (``wo``/``wi`` of shape (N, 3) stay in memory).
 
     Raises
     ------
     CaptureError
-        A malformed document or image (see the module docstring); the message names the file.
-        When several things are wrong, the in-memory load and ``out`` may name different ones
-        first (``out`` checks every header before any pixel data).
+        A malformed document or image; the message names the file.
     OSError
         ``out`` cannot be created or written (a file in the way, a full disk).
 
     Examples
     --------
-    >>> import tempfile, numpy as np
-    >>> from matfit.maps import load_capture, write_capture_document
-    >>> from matfit.maps import write_exr
+    >>> import os, tempfile, numpy as np
+    >>> from matfit.maps import load_capture, write_capture_document, write_exr
     >>> tmp = tempfile.TemporaryDirectory(); folder = tmp.name
     >>> write_exr(f"{folder}/a.exr", np.full((2, 3, 3), 0.5))
     >>> _ = write_capture_document(folder, {"images": ["a.exr"], "lights": [[0, 0, 2]], "camera": [0, 0, 1],
     ...                                     "irradiance": 2.0})
-    >>> cap = load_capture(folder)
-    >>> cap.shape, cap.n_images, cap.n_channels, float(cap.values[0, 0, 0, 0])
-    ((2, 3), 1, 3, 0.25)
-
-    With ``out``, the measurements go to files and come back memory-mapped:
-
-    >>> import os
-    >>> on_disk = load_capture(folder, out=f"{folder}/measured")
-    >>> type(on_disk.values).__name__, sorted(os.listdir(f"{folder}/measured"))
-    ('memmap', ['valid.npy', 'values.npy'])
-    >>> bool(np.array_equal(on_disk.values, cap.values) and np.array_equal(on_disk.valid, cap.valid))
-    True
+    >>> on_disk = load_capture(folder, out=f"{folder}/measured")    # pixel / (cos(theta_i) E)
+    >>> type(on_disk.values).__name__, sorted(os.listdir(f"{folder}/measured")), float(on_disk.values[0, 0, 0, 0])
+    ('memmap', ['valid.npy', 'values.npy'], 0.25)
     >>> del on_disk; tmp.cleanup()
     """
     doc_path = _find_document(path)
@@ -694,7 +678,7 @@ def _plain(v):
 
 
 def write_capture_document(folder, doc):
-    """Write ``doc`` as ``capture.json`` in ``folder`` (created if missing).
+    """Write ``doc`` as ``capture.json`` in ``folder`` (created if missing); returns its Path.
 
     ``"format"`` and ``"version"`` are filled in when absent; numpy arrays become lists. Unknown
     keys raise :class:`CaptureError`, as :func:`load_capture` would.
@@ -702,31 +686,12 @@ def write_capture_document(folder, doc):
     Parameters
     ----------
     folder : str or Path
-        The capture folder.
     doc : dict
-        The capture document (see the module docstring).
+        The capture document (the module docstring).
 
     Returns
     -------
     Path
-        The path of the written ``capture.json``.
-
-    Raises
-    ------
-    CaptureError
-        A key that capture documents do not define.
-
-    Examples
-    --------
-    >>> import json, tempfile
-    >>> import numpy as np
-    >>> from matfit.maps import write_capture_document
-    >>> with tempfile.TemporaryDirectory() as d:
-    ...     p = write_capture_document(d, {"images": ["a.png"], "lights": np.array([[0.0, 0.0, 1.0]]),
-    ...                                    "camera": [0, 0, 1]})
-    ...     doc = json.loads(p.read_text())
-    >>> p.name, doc["format"], doc["version"], doc["lights"]
-    ('capture.json', 'matfit-capture', 1, [[0.0, 0.0, 1.0]])
     """
     folder = Path(folder)
     out = {"format": FORMAT_NAME, "version": VERSION}

@@ -64,19 +64,16 @@ DEFAULT_CHUNK = 16384
 
 @dataclass(frozen=True)
 class MapResult:
-    """Per-texel results of :func:`fit_map`.
+    """Per-texel results of :func:`fit_map`; maps are ``(H, W)``, or ``(H, W, C)`` for per-channel parameters.
 
     Attributes
     ----------
     family : str
-        The fitted family.
     labels : list of str
         Free parameters, flat (``albedo[0]``, ...), as in :class:`~matfit.fitting.FitResult`.
-    params : dict
-        Parameter name -> map, ``(H, W)`` for scalar parameters, ``(H, W, C)`` per channel
-        (fixed parameters included, broadcast); NaN where a texel was not fitted.
-    stderr : dict
-        Standard errors of the free parameters, same shapes (NaN where not fitted).
+    params, stderr : dict
+        Parameter name -> map of values (fixed parameters included, broadcast) and of standard
+        errors of the free parameters; NaN where a texel was not fitted.
     objective : numpy.ndarray, (H, W)
         Half the sum of squared residuals at the solution.
     rel_rmse : numpy.ndarray, (H, W)
@@ -87,11 +84,11 @@ class MapResult:
     steps, n_measurements : numpy.ndarray, (H, W) int
         Solver iterations, and usable measurements, per texel.
     suspect : numpy.ndarray, (H, W) bool
-        Texels whose residual variance stays above ``SUSPECT_FACTOR`` (10) times the map's noise
-        level after every refit (module doc): a false minimum, or a texel the family does not
-        describe (a scratch, a sensor defect). Their parameters are not to be trusted.
+        Residual variance still above ``SUSPECT_FACTOR`` (10) times the map's noise level after
+        every refit (module doc): a false minimum, or a texel the family does not describe (a
+        scratch, a sensor defect). Their parameters are not to be trusted.
     refitted : int
-        Texels solved again from more starts (each counted once, whichever passes refitted it).
+        Texels solved again from more starts (each counted once).
     noise_level : float
         The residual variance the ends were judged against (1 with ``sigma``; NaN: none, for a
         map of fewer than 16 fitted texels without ``sigma``).
@@ -109,6 +106,8 @@ class MapResult:
     >>> r = fit_map(wo, wi, np.full((1, 2, 3, 3), 0.1), model="lambert", mask=mask)
     >>> r.family, r.shape, r.labels, r.fitted.tolist(), bool(np.isnan(r.params["albedo"][0, 1]).all())
     ('lambert', (1, 2), ['albedo[0]', 'albedo[1]', 'albedo[2]'], [[True, False]], True)
+    >>> [round(float(x), 4) for x in r.model_at(0, 0).reflectance]     # albedo = pi * 0.1
+    [0.3142, 0.3142, 0.3142]
     """
 
     family: str
@@ -139,50 +138,13 @@ class MapResult:
         return float(self.fitted.sum()) / max(self.wall_time, 1e-12)
 
     def model_at(self, row, col):
-        """The fitted model of texel ``(row, col)``.
-
-        Parameters
-        ----------
-        row, col : int
-            The texel.
-
-        Returns
-        -------
-        matfit.models.AbstractBSDF
-            The family's model with the texel's parameters (NaN for a texel not fitted).
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from matfit.maps import fit_map
-        >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
-        >>> r = fit_map(wo, wi, np.full((1, 2, 3, 3), 0.1), model="lambert")
-        >>> m = r.model_at(0, 1)
-        >>> type(m).__name__, [round(float(x), 4) for x in m.reflectance]     # albedo = pi * 0.1
-        ('Lambert', [0.3142, 0.3142, 0.3142])
-        """
+        """The family's model with texel ``(row, col)``'s parameters (NaN for a texel not fitted)."""
         fam = get_family(self.family)
         C = next((v.shape[-1] for v in self.params.values() if v.ndim == 3), 1)
         return fam.build({k: v[row, col] for k, v in self.params.items()}, C)
 
     def summary(self) -> str:
-        """A few lines: texels fitted, converged, at a bound, median parameters and errors.
-
-        Returns
-        -------
-        str
-            The first line names the family, the map's size and the texels fitted; one line per
-            parameter follows.
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from matfit.maps import fit_map
-        >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
-        >>> lines = fit_map(wo, wi, np.full((1, 2, 3, 3), 0.1), model="lambert").summary().splitlines()
-        >>> lines[0].split(" in ")[0], lines[3].split(",")[0]
-        ('lambert map 1x2: 2 texels fitted', '  albedo     median 0.3142 0.3142 0.3142')
-        """
+        """A few lines: texels fitted, converged, at a bound, refitted and suspect; median parameters and errors."""
         n = int(self.fitted.sum())
         lines = [f"{self.family} map {self.shape[0]}x{self.shape[1]}: {n} texels fitted in {self.wall_time:.1f} s "
                  f"({self.texels_per_second:.0f} texels/s)",
@@ -596,30 +558,18 @@ def _gather(local, n_chunks, P, chunk, p, store):
 
 
 def initialize_processes(coordinator, num_processes, process_id, timeout=120) -> None:
-    """Join JAX's multi-process runtime (``jax.distributed.initialize``) before any JAX work, so
-    that :func:`fit_map` splits its chunks over ``num_processes`` processes.
+    """Join JAX's multi-process runtime (``jax.distributed.initialize``) before any JAX work, so that
+    :func:`fit_map` splits its chunks over ``num_processes`` processes.
 
     Parameters
     ----------
     coordinator : str
         ``host:port`` of process 0 (e.g. ``"127.0.0.1:12355"``).
     num_processes, process_id : int
-        The number of processes (>= 1) and this one's index (from 0).
+        The number of processes (>= 1) and this one's index (from 0); out of range, or a
+        malformed ``coordinator``, raises ParameterError.
     timeout : int
         Seconds to wait for every process to join.
-
-    Raises
-    ------
-    ParameterError
-        A count, index or address out of range.
-
-    Examples
-    --------
-    >>> from matfit.maps import initialize_processes
-    >>> initialize_processes("127.0.0.1:1", 0, 0)
-    Traceback (most recent call last):
-    ...
-    matfit.errors.ParameterError: num_processes must be an integer >= 1, got 0
     """
     for name, v, lo in (("num_processes", num_processes, 1), ("process_id", process_id, 0)):
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:

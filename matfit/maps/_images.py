@@ -3,7 +3,10 @@
 PNG goes through pypng because Pillow truncates 16-bit colour PNG to 8 bits; EXR goes through
 the ``OpenEXR.File`` API. PNG codes are returned divided by the largest code (values in [0, 1],
 no colour decoding); EXR values are returned as stored (linear floats). Every error is a
-:class:`~matfit.errors.DataFormatError` naming the file.
+:class:`~matfit.errors.DataFormatError` naming the file: reading, a missing file, an unsupported
+extension, a damaged file, a palette PNG or a bit depth other than 8 / 16, EXR channels other than
+R, G, B[, A] / Y[, A] or not HALF / FLOAT; writing, a bit depth other than 8 / 16, a non-numeric,
+non-finite or wrongly shaped array (PNG 1 to 4 channels, EXR 1 or 3), a file that cannot be written.
 
 :func:`open_image_rows` reads an image a band of rows at a time, for loaders that must stay
 bounded in memory: non-interlaced PNG rows come from pypng's lazy row iterator, EXR scanline
@@ -100,36 +103,8 @@ def _read_exr(path):
 
 
 def read_image_codes(path):
-    """Like :func:`read_image`, but PNG pixels stay integer codes (uint8 or uint16); EXR pixels
-    are float32. Used by the capture loader to decode sRGB through a lookup table.
-
-    Parameters
-    ----------
-    path : str or Path
-        The image; the files :func:`read_image` accepts.
-
-    Returns
-    -------
-    pixels : numpy.ndarray, (H, W, C)
-        PNG: the codes (uint8 or uint16); EXR: float32 values.
-    info : dict
-        As :func:`read_image` returns.
-
-    Raises
-    ------
-    DataFormatError
-        As :func:`read_image`.
-
-    Examples
-    --------
-    >>> import os, tempfile
-    >>> import numpy as np
-    >>> from matfit.maps._images import read_image_codes, write_png
-    >>> with tempfile.TemporaryDirectory() as d:
-    ...     write_png(os.path.join(d, "ramp.png"), np.array([[0.0, 0.5, 1.0]]), bit_depth=16)
-    ...     codes, info = read_image_codes(os.path.join(d, "ramp.png"))
-    >>> codes.dtype.name, codes[0, :, 0].tolist(), info["max_code"]
-    ('uint16', [0, 32768, 65535], 65535)
+    """Like :func:`read_image`, but PNG pixels stay integer codes (uint8 or uint16); EXR pixels are
+    float32. Used by the capture loader to decode sRGB through a lookup table.
     """
     fmt = _format_of(path)
     if not os.path.isfile(path):
@@ -149,43 +124,12 @@ def _canonical_error(path, what):
 
 
 class ImageRows:
-    """Bands of rows of one image, read in order from the top: see :func:`open_image_rows`.
+    """Bands of rows of one image, read in order from the top (made by :func:`open_image_rows`); a context manager.
 
-    Parameters
-    ----------
-    path : str or Path
-        The image file.
-    shape, info
-        As the attributes.
-    read : callable
-        ``read(y, n)``: rows ``y .. y + n - 1`` (``n < 0``: check the end of the data).
-    close : callable, optional
-        Releases the file.
-
-    Attributes
-    ----------
-    path : Path
-        The image file.
-    shape : tuple
-        ``(H, W, C)``, as :func:`read_image_codes` would return.
-    info : dict
-        As :func:`read_image_codes` returns (``"bit_depth"``, ``"format"``, ``"max_code"``).
-    position : int
-        The number of rows read so far.
-    interlaced : bool
-        An interlaced PNG: decoded whole on the first read, held in memory until closed.
-
-    Examples
-    --------
-    >>> import os, tempfile
-    >>> import numpy as np
-    >>> from matfit.maps._images import open_image_rows, write_exr
-    >>> with tempfile.TemporaryDirectory() as d:
-    ...     write_exr(os.path.join(d, "rows.exr"), np.arange(6.0).reshape(3, 2))
-    ...     with open_image_rows(os.path.join(d, "rows.exr")) as im:
-    ...         first = im.read(2)
-    ...         print(im.shape, im.position, first[:, :, 0].tolist(), im.read(5)[:, :, 0].tolist())
-    (3, 2, 1) 2 [[0.0, 1.0], [2.0, 3.0]] [[4.0, 5.0]]
+    ``read(y, n)`` gives rows ``y .. y + n - 1`` (``n < 0``: check the end of the data) and
+    ``close`` releases the file. ``shape`` is ``(H, W, C)`` and ``info`` the dict of
+    :func:`read_image_codes`; ``position`` counts the rows read; ``interlaced`` marks an
+    interlaced PNG, decoded whole on the first read and held in memory until closed.
     """
 
     def __init__(self, path, shape, info, read, close=None):
@@ -195,61 +139,15 @@ class ImageRows:
         self._read, self._close = read, close
 
     def read(self, n):
-        """The next ``n`` rows, ``(n, W, C)``: integer codes (uint8 or uint16) for PNG, float32
-        for EXR; fewer at the bottom of the image, none past it. Errors as :func:`read_image_codes`.
-
-        Parameters
-        ----------
-        n : int
-            Rows wanted.
-
-        Returns
-        -------
-        numpy.ndarray, (m, W, C)
-            ``m = min(n, rows left)`` rows.
-
-        Examples
-        --------
-        >>> import os, tempfile
-        >>> import numpy as np
-        >>> from matfit.maps._images import open_image_rows, write_png
-        >>> with tempfile.TemporaryDirectory() as d:
-        ...     path = os.path.join(d, "ramp.png")
-        ...     write_png(path, np.linspace(0, 1, 6).reshape(3, 2), bit_depth=16)
-        ...     with open_image_rows(path) as im:
-        ...         sizes = [len(im.read(2)), len(im.read(2)), len(im.read(2))]
-        >>> sizes, im.position
-        ([2, 1, 0], 3)
-        """
+        """The next ``n`` rows ``(m, W, C)``, ``m = min(n, rows left)``: PNG codes or EXR float32; errors as :func:`read_image_codes`."""
         n = max(0, min(int(n), self.shape[0] - self.position))
         rows = self._read(self.position, n)
         self.position += n
         return rows
 
     def finish(self) -> None:
-        """Check the image's data ends where expected (after its last row) and close it.
-
-        Raises
-        ------
-        ValueError
-            Rows are left unread.
-        DataFormatError
-            Data follows the last row, or the stream is damaged (as :func:`read_image_codes`).
-
-        Examples
-        --------
-        >>> import tempfile
-        >>> import numpy as np
-        >>> from matfit.maps._images import open_image_rows, write_exr
-        >>> with tempfile.TemporaryDirectory() as d:
-        ...     write_exr(f"{d}/flat.exr", np.ones((3, 4)))
-        ...     im = open_image_rows(f"{d}/flat.exr")
-        ...     try:
-        ...         im.finish()                    # nothing read yet
-        ...     except ValueError as e:
-        ...         print(str(e).split(": ")[1])
-        ...     _ = im.read(3); im.finish()
-        3 rows not read
+        """Check the data ends after the last row and close: ValueError if rows are left unread,
+        DataFormatError (as :func:`read_image_codes`) if data follows or the stream is damaged.
         """
         if self.position < self.shape[0]:
             raise ValueError(f"{self.path}: {self.shape[0] - self.position} rows not read")
@@ -257,20 +155,7 @@ class ImageRows:
         self.close()
 
     def close(self) -> None:
-        """Release the file (idempotent).
-
-        Examples
-        --------
-        >>> import tempfile
-        >>> from matfit.maps._images import open_image_rows, write_png
-        >>> with tempfile.TemporaryDirectory() as d:
-        ...     write_png(f"{d}/black.png", [[0.0, 0.0]], bit_depth=8)
-        ...     with open_image_rows(f"{d}/black.png") as im:
-        ...         first = im.read(1)
-        ...     im.close()                       # closed on leaving the block: this does nothing
-        >>> first.shape
-        (1, 2, 1)
-        """
+        """Release the file (idempotent)."""
         if self._close is not None:
             close, self._close = self._close, None
             close()
@@ -363,40 +248,11 @@ def _exr_rows(path):
 
 
 def open_image_rows(path):
-    """Open an image to read it a band of rows at a time (top to bottom).
+    """Open an image to read it a band of rows at a time (top to bottom): an :class:`ImageRows`.
 
-    The pixels are those of :func:`read_image_codes` (PNG: integer codes; EXR: float32), as are
-    the errors. Non-interlaced PNGs are decoded as their rows are read; EXR reads only the
-    scanlines asked for (through OpenEXR's ``InputFile``). An interlaced PNG is decoded whole on
-    its first read (``interlaced`` is True) and held until closed.
-
-    Parameters
-    ----------
-    path : str or Path
-        A ``.png`` or ``.exr`` file, as for :func:`read_image`.
-
-    Returns
-    -------
-    ImageRows
-        ``shape`` (H, W, C), ``info``, ``read(n)`` for the next ``n`` rows, ``finish()`` to check
-        the end of the data and close, ``close()``; a context manager.
-
-    Raises
-    ------
-    DataFormatError
-        As :func:`read_image_codes`: missing, damaged or unsupported files.
-
-    Examples
-    --------
-    >>> import tempfile, os, numpy as np
-    >>> from matfit.maps._images import open_image_rows, write_png
-    >>> with tempfile.TemporaryDirectory() as d:
-    ...     write_png(os.path.join(d, "ramp.png"), np.linspace(0, 1, 12).reshape(4, 3), bit_depth=8)
-    ...     with open_image_rows(os.path.join(d, "ramp.png")) as im:
-    ...         top, rest = im.read(1), im.read(10)
-    ...         im.finish()
-    >>> im.shape, top.shape, rest.shape, top.dtype.name, int(rest[-1, -1, 0])
-    ((4, 3, 1), (1, 3, 1), (3, 3, 1), 'uint8', 255)
+    Pixels and errors are those of :func:`read_image_codes`. Non-interlaced PNGs are decoded as their
+    rows are read; EXR reads only the scanlines asked for (OpenEXR's ``InputFile``); an interlaced PNG
+    is decoded whole on its first read and held until closed.
     """
     fmt = _format_of(path)
     if not os.path.isfile(path):
@@ -411,27 +267,20 @@ def read_image(path):
     ----------
     path : str or Path
         A ``.png`` (8- or 16-bit greyscale, greyscale + alpha, RGB or RGBA; palette images and
-        1-, 2-, 4-bit depths are refused) or ``.exr`` (channels R, G, B[, A] or Y[, A]) file.
+        1-, 2-, 4-bit depths are refused) or ``.exr`` (channels R, G, B[, A] or Y[, A], HALF or FLOAT).
 
     Returns
     -------
     pixels : ndarray, float32, (H, W, C)
-        PNG: codes divided by the largest code, in [0, 1] (no colour decoding). EXR: the stored
-        values.
+        PNG: codes divided by the largest code, in [0, 1] (no colour decoding). EXR: as stored.
     info : dict
-        ``"bit_depth"`` (8 or 16 for PNG; 32 for FLOAT EXR, 16 for HALF EXR), ``"format"``
+        ``"bit_depth"`` (8 or 16 for PNG; 32 for FLOAT EXR, 16 for HALF), ``"format"``
         (``"png"`` or ``"exr"``) and ``"max_code"`` (255, 65535, or None for EXR).
-
-    Raises
-    ------
-    DataFormatError
-        Missing file, unsupported extension, damaged file or unsupported bit depth; the message
-        names the file.
 
     Examples
     --------
     >>> import tempfile, os, numpy as np
-    >>> from matfit.maps._images import read_image, write_png
+    >>> from matfit.maps import read_image, write_png
     >>> with tempfile.TemporaryDirectory() as d:
     ...     write_png(os.path.join(d, "gray.png"), np.full((2, 3), 0.5), bit_depth=8)
     ...     pixels, info = read_image(os.path.join(d, "gray.png"))
@@ -458,33 +307,17 @@ def _as_image(what, path, array):
 
 
 def write_png(path, array, bit_depth=16) -> None:
-    """Write values in [0, 1] as an 8- or 16-bit PNG (codes rounded to the nearest integer).
+    """Write values in [0, 1] (clipped) as an 8- or 16-bit PNG, codes rounded to the nearest integer.
+
+    No colour encoding is applied: encode sRGB before calling if wanted.
 
     Parameters
     ----------
     path : str or Path
-        The file to write (replaced if present).
+        Replaced if present.
     array : array_like, (H, W) or (H, W, C) with C in 1..4
-        1: greyscale, 2: greyscale + alpha, 3: RGB, 4: RGBA. Values outside [0, 1] are clipped.
-        No colour encoding is applied: encode sRGB before calling if wanted.
+        1: greyscale, 2: greyscale + alpha, 3: RGB, 4: RGBA.
     bit_depth : {8, 16}
-        Bits per code.
-
-    Raises
-    ------
-    DataFormatError
-        Another bit depth, a non-numeric, non-finite or wrongly shaped array, or a file that
-        cannot be written; the message names the file.
-
-    Examples
-    --------
-    >>> import tempfile, os, numpy as np
-    >>> from matfit.maps._images import read_image, write_png
-    >>> with tempfile.TemporaryDirectory() as d:
-    ...     write_png(os.path.join(d, "rgb.png"), np.full((4, 5, 3), 2.0))   # clipped to 1
-    ...     pixels, info = read_image(os.path.join(d, "rgb.png"))
-    >>> float(pixels.min()), pixels.shape, info["bit_depth"]
-    (1.0, (4, 5, 3), 16)
     """
     import png
 
@@ -510,24 +343,9 @@ def write_exr(path, array) -> None:
     Parameters
     ----------
     path : str or Path
-        The file to write (replaced if present).
+        Replaced if present.
     array : array_like, (H, W), (H, W, 1) or (H, W, 3)
         Linear values, stored as FLOAT (32-bit).
-
-    Raises
-    ------
-    DataFormatError
-        Another channel count, non-finite values, or a file that cannot be written.
-
-    Examples
-    --------
-    >>> import tempfile, os, numpy as np
-    >>> from matfit.maps._images import read_image, write_exr
-    >>> with tempfile.TemporaryDirectory() as d:
-    ...     write_exr(os.path.join(d, "hdr.exr"), np.full((2, 2, 3), 7.25))
-    ...     pixels, info = read_image(os.path.join(d, "hdr.exr"))
-    >>> float(pixels[1, 1, 2]), info["bit_depth"], info["format"]
-    (7.25, 32, 'exr')
     """
     import OpenEXR
 

@@ -96,36 +96,21 @@ def _gltf_document(material, textures):
 
 
 def gltf_maps(result: MapResult):
-    """The glTF texture images and material of a map (see the module doc).
+    """The glTF texture images and material of a map (the module doc's mapping per family).
 
     Parameters
     ----------
     result : MapResult
-        A map of a family in :data:`GLTF_FAMILIES`.
+        A map of a family in :data:`GLTF_FAMILIES` (else a ParameterError).
 
     Returns
     -------
     images : dict
-        File name -> (H, W, 3) array in [0, 1], already encoded as glTF reads it (sRGB for
-        colour textures).
+        File name -> (H, W, 3) array in [0, 1], encoded as glTF reads it (sRGB for colour).
     material : dict
         The glTF material, with texture indices in the order of ``images``.
     notes : list of str
         What is approximate.
-
-    Raises
-    ------
-    ParameterError
-        A family without a glTF mapping.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit.maps import fit_map, gltf_maps
-    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
-    >>> images, material, notes = gltf_maps(fit_map(wo, wi, np.full((2, 2, 3, 3), 0.1), model="lambert"))
-    >>> sorted(images), material["pbrMetallicRoughness"]["metallicFactor"]
-    (['base_color.png'], 0.0)
     """
     fam = result.family
     if fam not in GLTF_MAPPINGS:
@@ -135,9 +120,9 @@ def gltf_maps(result: MapResult):
 
 
 def _textured(name, base, fitted, metallic=None, alpha=None):
-    """``(images, material, notes)`` of a metallic-roughness material: the base colour texture
-    (sRGB) and, given ``alpha``, the metallic-roughness texture (roughness = sqrt(alpha) in G,
-    ``metallic`` in B)."""
+    """``(images, material, notes)`` of a metallic-roughness material: the sRGB base colour texture and,
+    given ``alpha``, the metallic-roughness texture (roughness = sqrt(alpha) in G, ``metallic`` in B).
+    """
     base = np.where(fitted[..., None], np.clip(base, 0, 1), 0)
     images = {"base_color.png": _srgb_encode(base)}
     pbr = {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "baseColorTexture": {"index": 0}, "metallicFactor": 0.0}
@@ -207,26 +192,21 @@ GLTF_FAMILIES = tuple(GLTF_MAPPINGS)
 
 
 def write_maps(result: MapResult, folder, formats=FORMATS):
-    """Write the maps of ``result`` into ``folder`` (created; see the module doc for the files).
+    """Write the maps of ``result`` into ``folder`` (created; the files: the module doc).
 
     Parameters
     ----------
     result : MapResult
         What :func:`fit_map` returned.
     folder : str or Path
-        The output folder.
     formats : sequence of {"png", "exr", "gltf"}, default FORMATS
-        The files to write (``fitted.png`` and ``converged.png`` always are).
+        The files to write (``fitted.png`` and ``converged.png`` always are); an unknown format,
+        or ``"gltf"`` for a family without a glTF mapping, raises ParameterError.
 
     Returns
     -------
     dict
         The ``maps.json`` index as written.
-
-    Raises
-    ------
-    ParameterError
-        An unknown format, or ``"gltf"`` for a family without a glTF mapping.
 
     Examples
     --------
@@ -283,34 +263,17 @@ def write_maps(result: MapResult, folder, formats=FORMATS):
 
 
 def read_maps(folder):
-    """Read a folder written by :func:`write_maps` back (from its EXR maps) as a dict of arrays.
+    """Read a folder written by :func:`write_maps` back from its EXR maps.
 
     Parameters
     ----------
     folder : str or Path
-        A folder holding ``maps.json``.
+        Holding ``maps.json`` (else a ParameterError, as for a parameter without its EXR map).
 
     Returns
     -------
     dict
         Parameter name -> float32 map, ``(H, W, C)`` per channel, else ``(H, W)``.
-
-    Raises
-    ------
-    ParameterError
-        No ``maps.json``, or a parameter written without its EXR map.
-
-    Examples
-    --------
-    >>> import tempfile, numpy as np
-    >>> from matfit.maps import fit_map, read_maps, write_maps
-    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
-    >>> result = fit_map(wo, wi, np.full((2, 2, 3, 3), 0.1), model="lambert")
-    >>> with tempfile.TemporaryDirectory() as d:
-    ...     _ = write_maps(result, d, formats=("exr",))
-    ...     maps = read_maps(d)
-    >>> maps["albedo"].shape, bool(np.allclose(maps["albedo"], result.params["albedo"]))
-    ((2, 2, 3), True)
     """
     from ._images import read_image
 

@@ -1,4 +1,7 @@
-"""Microfacet normal distributions with Smith masking: GGX, Beckmann, normalized Blinn-Phong."""
+r"""Microfacet normal distributions with Smith masking: GGX, Beckmann, normalized Blinn-Phong, and
+distributions tabulated or extracted from measurements. The shared math (normalization, Smith
+:math:`G_1`, :math:`G_2`, visible normals, what ``alpha`` means) is in :class:`AbstractDistribution`;
+each distribution's :math:`D` and :math:`\Lambda` in its module."""
 
 from ._base import ALPHA_MIN, MASKING_FORMS, AbstractDistribution
 from .beckmann import Beckmann
@@ -16,27 +19,13 @@ def make_distribution(name, alpha_x, alpha_y=None):
     Parameters
     ----------
     name : {"ggx", "beckmann", "blinn_phong"}
-        The distribution (a key of :data:`DISTRIBUTIONS`).
-    alpha_x : array_like
-        Width along x, > 0.
-    alpha_y : array_like, optional
-        Width along y (default: ``alpha_x``, isotropic).
+        A key of :data:`DISTRIBUTIONS`; another name raises ValueError.
+    alpha_x, alpha_y : array_like
+        Widths along x and y (``alpha_y`` default: ``alpha_x``, isotropic).
 
     Returns
     -------
     AbstractDistribution
-        A :class:`GGX`, :class:`Beckmann` or :class:`BlinnPhong`.
-
-    Raises
-    ------
-    ValueError
-        For an unknown ``name``.
-
-    Examples
-    --------
-    >>> from matfit.microfacet import make_distribution
-    >>> type(make_distribution("ggx", 0.2)).__name__
-    'GGX'
     """
     try:
         cls = DISTRIBUTIONS[name]

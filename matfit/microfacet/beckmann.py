@@ -29,8 +29,7 @@ _INV_SQRT_PI = 0.5641895835477563
 
 
 def beckmann_lambda(a2tan2):
-    r"""Beckmann's Smith :math:`\Lambda` as a function of :math:`\alpha^2\tan^2\theta` (shared
-    with Blinn-Phong).
+    r"""Beckmann's Smith :math:`\Lambda` (module docstring) of :math:`\alpha^2\tan^2\theta_v`; shared with Blinn-Phong.
 
     Parameters
     ----------
@@ -40,14 +39,7 @@ def beckmann_lambda(a2tan2):
     Returns
     -------
     jax.Array
-        :math:`\Lambda = (\operatorname{erf}(c) - 1)/2 + e^{-c^2}/(2c\sqrt\pi)`,
-        :math:`c = 1/\sqrt{\alpha^2\tan^2\theta}`; 0 at the normal.
-
-    Examples
-    --------
-    >>> from matfit.microfacet.beckmann import beckmann_lambda
-    >>> float(beckmann_lambda(0.0)), round(float(beckmann_lambda(1.0)), 4)
-    (0.0, 0.0251)
+        :math:`\Lambda`, 0 at the normal.
     """
     pos = a2tan2 > 0
     c = jnp.where(pos, jax.lax.rsqrt(jnp.where(pos, a2tan2, 1)), 1)  # c = 1/(alpha tan)
@@ -90,15 +82,12 @@ def _sample_slope_x(cos_t, u, iters=14):
 class Beckmann(AbstractDistribution):
     """Beckmann microfacet distribution, isotropic or anisotropic.
 
-    Visible normals are sampled by stretching ``wo``, inverting the alpha = 1 visible-slope CDF
-    (safeguarded Newton iterations in the erf domain), rotating and unstretching.
+    Visible normals: stretch ``wo``, invert the alpha = 1 visible-slope CDF, rotate and unstretch.
 
     Parameters
     ----------
-    alpha_x : array_like
-        Width along x, > 0 (clamped to :data:`~matfit.microfacet.ALPHA_MIN`). Differentiable.
-    alpha_y : array_like, optional
-        Width along y (default: ``alpha_x``, isotropic). Differentiable.
+    alpha_x, alpha_y : array_like
+        Widths, as for :class:`~matfit.microfacet.AbstractDistribution`.
 
     Examples
     --------

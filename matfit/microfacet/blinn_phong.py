@@ -32,10 +32,8 @@ class BlinnPhong(AbstractDistribution):
 
     Parameters
     ----------
-    alpha_x : array_like
-        Width along x, > 0 (clamped to :data:`~matfit.microfacet.ALPHA_MIN`). Differentiable.
-    alpha_y : array_like, optional
-        Width along y (default: ``alpha_x``, isotropic). Differentiable.
+    alpha_x, alpha_y : array_like
+        Widths, as for :class:`~matfit.microfacet.AbstractDistribution`.
 
     Examples
     --------

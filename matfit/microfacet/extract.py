@@ -1,34 +1,30 @@
 r"""The distribution of normals of a measured material, from its retro-reflection (Dupuy et al. 2015).
 
-At backscattering (:math:`\omega_o = \omega_i = k`) a microfacet BRDF reads its distribution
-directly: the half vector is :math:`k`, the Fresnel factor is :math:`F(0)` for every :math:`k`, and
+At backscattering (:math:`\omega_o = \omega_i = k`) the half vector is :math:`k` and the Fresnel
+factor is :math:`F(0)` for every :math:`k`, so a microfacet BRDF reads its distribution directly:
 
 .. math::
     f(k, k) = \frac{F(0)\,D(k)\,G_2(k, k)}{4\cos^2\theta_k},\qquad
     G_1(k) = \frac{\cos\theta_k}{\sigma(k)},\quad \sigma(k) = \int\max(0, k\cdot m)\,D(m)\,d\omega_m .
 
-Since :math:`G_1` is itself an integral of :math:`D`, :math:`D` is the fixed point of
-
-.. math::
-    D_{n+1}(k) \propto \frac{4\cos\theta_o\cos\theta_i\,f(\omega_o, \omega_i)}{G_2[D_n](\omega_o, \omega_i)},
-    \qquad \textstyle\int D_{n+1}\cos\theta\,d\omega = 1,
-
-evaluated on the rows of the table closest to backscattering (:math:`\theta_d \le`
-``max_theta_d``, each with its own :math:`\theta_o`, :math:`\theta_i`, at :math:`\theta_h`). With
-Dupuy et al.'s :math:`G_2(k, k) = G_1(k)` (masking and shadowing fully correlated at
-backscattering, ``masking="smith_g1"``) the map is linear, :math:`D = \lambda\,K D` with
-:math:`K(k, m) = 4\cos\theta_k f(k, k)\max(0, k\cdot m)`, and the iteration is the paper's power
-iteration for the eigenvector of the largest eigenvalue; the normalization divides out
-:math:`F(0)` (returned as ``f0``). ``"separable"`` (:math:`G_1^2`, matfit's default masking) and
-``"height_correlated"`` (:math:`1/(1 + 2\Lambda)`) read the same data with those models' masking:
-use the form of the model the start is for. :math:`\sigma` is computed from :math:`D_n` by
-:func:`~matfit.microfacet.back_facing_area` (:math:`\sigma = \cos\theta + B`) at every iteration.
+As :math:`G_1` is itself an integral of :math:`D`, :math:`D` is the fixed point of
+:math:`D_{n+1}(k) \propto 4\cos\theta_o\cos\theta_i\,f(\omega_o, \omega_i)/G_2[D_n](\omega_o, \omega_i)`,
+normalized to :math:`\int D_{n+1}\cos\theta\,d\omega = 1`, on the rows closest to backscattering
+(:math:`\theta_d \le` ``max_theta_d``, each with its own :math:`\theta_o`, :math:`\theta_i`, at
+:math:`\theta_h`); :math:`\sigma = \cos\theta + B` comes from :math:`D_n` by
+:func:`~matfit.microfacet.back_facing_area` every iteration. With Dupuy et al.'s
+:math:`G_2(k, k) = G_1(k)` (``masking="smith_g1"``: masking and shadowing fully correlated) the map
+is linear, :math:`D = \lambda\,K D`, :math:`K(k, m) = 4\cos\theta_k f(k, k)\max(0, k\cdot m)`: the
+paper's power iteration for the leading eigenvector; the normalization divides out :math:`F(0)`
+(``f0``). ``"separable"`` (:math:`G_1^2`, matfit's default) and ``"height_correlated"``
+(:math:`1/(1 + 2\Lambda)`) read the same data with those models' masking: use the form of the
+model the start is for.
 
 :func:`ndf_start` turns the extracted :math:`D` into starting values: the GGX and Beckmann
 :math:`\alpha` of least projected-area misfit, the paper's slope-moment conversions
 (:math:`\alpha_\text{GGX} = E|\tilde x|`, :math:`\alpha_\text{Beckmann} = \sqrt{2E[\tilde x^2]}`), a
-suggested lobe count (one or two GGX lobes) and, where the retro-reflection rows cover several
-azimuths, an anisotropy hint.
+suggested lobe count (one or two GGX lobes) and, where the rows cover several azimuths, an
+anisotropy hint.
 
 References
 ----------
@@ -73,8 +69,7 @@ _DISTRIBUTIONS = {"ggx": GGX, "beckmann": Beckmann}
 
 
 def _normals(theta):
-    """Unit normals at angles ``theta`` from +z in the xz plane, (..., 3), computed in float64
-    (so that the horizon node's cosine stays > 0 once cast to float32)."""
+    """Unit normals at ``theta`` from +z in the xz plane, in float64 (the horizon's cosine stays > 0 in float32)."""
     theta = np.asarray(theta, np.float64)
     return np.stack([np.sin(theta), np.zeros_like(theta), np.cos(theta)], -1)
 
@@ -85,8 +80,7 @@ def _d_at(kind, m, alpha):
 
 
 def _library_d(kind, theta, alpha):
-    """The library distribution's :math:`D` (``"ggx"`` or ``"beckmann"``, isotropic ``alpha``) at
-    angles ``theta`` from the normal, as float64 numpy (broadcast ``theta`` against ``alpha``)."""
+    """"ggx" or "beckmann" D (isotropic ``alpha``) at angles ``theta`` as float64 numpy (broadcast)."""
     m = jnp.asarray(_normals(theta))
     return np.asarray(_d_at(kind, m, jnp.asarray(np.asarray(alpha, np.float64), m.dtype)), np.float64)
 
@@ -158,8 +152,7 @@ def _retro_rows(table, max_theta_d, max_theta, diffuse, channel):
 
 
 def _bin_to_nodes(u_rows, y_rows, u_nodes):
-    """Mean of the rows in each cell of the nodes (in u), interpolated to the nodes (constant
-    beyond the data)."""
+    """Mean of the rows in each node cell (in u), interpolated to the nodes (constant beyond the data)."""
     n = len(u_nodes)
     b = np.clip(np.floor(u_rows * (n - 1)).astype(np.int64), 0, n - 2)
     cnt = np.bincount(b, minlength=n - 1).astype(np.float64)
@@ -230,35 +223,29 @@ def _extract(table, n_theta, masking, max_theta_d, max_theta, diffuse, channel, 
 
 def extract_ndf(table, n_theta=128, masking="separable", max_theta_d=math.radians(2.0), max_theta=math.radians(85.0),
                 diffuse=0.0, channel=None, max_iter=100, tol=1e-6, n_lambda=256, dtype=None):
-    r"""The isotropic distribution of normals of a measured table, by the fixed-point (power)
-    iteration of Dupuy et al. 2015 on its retro-reflection (see the module docstring).
+    r"""The isotropic distribution of normals of a measured table, by the fixed-point (power) iteration
+    of Dupuy et al. 2015 on its retro-reflection (module docstring).
 
     Parameters
     ----------
     table : matfit.Table
-        Measured BRDF with rows near backscattering (a MERL table has them at
-        :math:`\theta_d = 0.5^\circ`); only valid rows are read.
+        Measured BRDF with valid rows near backscattering (MERL has them at :math:`\theta_d = 0.5^\circ`).
     n_theta : int, optional
-        Nodes of the extracted :math:`D` on :func:`~matfit.microfacet.ndf_grid` (default 128).
+        Nodes of :math:`D` on :func:`~matfit.microfacet.ndf_grid` (default 128).
     masking : {"separable", "height_correlated", "smith_g1"}, optional
         :math:`G_2` of the backscattering relation (:data:`EXTRACTION_MASKING`); default
-        ``"separable"``, matfit's models' default.
-    max_theta_d : float, optional
-        Largest half angle between ``wo`` and ``wi`` of a row read as retro-reflection
-        (radians, default 2 degrees).
-    max_theta : float, optional
-        Largest :math:`\theta_o`, :math:`\theta_i` read (radians, default 85 degrees: measured
-        grazing values are the least reliable); :math:`D` is held constant beyond the last
-        :math:`\theta_h` read.
+        ``"separable"``, the models' default.
+    max_theta_d, max_theta : float, optional
+        Largest half angle between ``wo`` and ``wi`` of a row read (default 2 degrees), largest
+        :math:`\theta_o`, :math:`\theta_i` read (default 85: measured grazing values are the least
+        reliable); radians. :math:`D` is held constant beyond the last :math:`\theta_h` read.
     diffuse : float or array_like (C,), optional
-        A diffuse floor (BRDF value in 1/sr) subtracted from every value first (default 0).
+        A diffuse floor (1/sr) subtracted from every value first (default 0).
     channel : int, optional
-        Read this channel only; default: the luminance of an RGB table, the mean of the
-        channels otherwise.
-    max_iter : int, optional
-        Iterations at most (default 100).
-    tol : float, optional
-        Stop when no node of :math:`D` changes by more than ``tol`` times its peak (default 1e-6).
+        The channel read; default: the luminance of an RGB table, else the mean of the channels.
+    max_iter, tol : optional
+        At most ``max_iter`` iterations (100); stop when no node of :math:`D` changes by more than
+        ``tol`` (1e-6) times its peak.
     n_lambda : int, optional
         Nodes of the returned distribution's masking table (default 256).
     dtype : numpy dtype, optional
@@ -399,34 +386,19 @@ def _anisotropy(r, min_rows=16):
 
 def ndf_start(table, n_theta=128, masking="separable", max_theta_d=math.radians(2.0), max_theta=math.radians(85.0),
               diffuse=0.0, channel=None, max_iter=100, tol=1e-6):
-    r"""Data-driven microfacet starting values: the distribution extracted by :func:`extract_ndf`
-    and what it says about widths, lobes and anisotropy.
+    r"""Data-driven microfacet starting values: the distribution :func:`extract_ndf` extracts and what it
+    says about widths, lobes and anisotropy.
 
-    The GGX and Beckmann widths minimize the relative misfit
-    :math:`\lVert D - D_\alpha\rVert / \lVert D\rVert` in the projected measure
-    (:math:`\lVert g\rVert^2 = \int g^2\cos\theta\,d\omega`); the moment widths are Dupuy et al.'s
-    conversions of the slope moments (:math:`E[\tilde x^2]` is cut at ``max_theta``, where a GGX
-    tail makes it diverge). Two GGX lobes are suggested when one misfits by more than
-    :data:`TWO_LOBE_MISFIT` and two at most halve that misfit (:data:`TWO_LOBE_GAIN`).
+    The GGX and Beckmann widths minimize the relative misfit :math:`\lVert D - D_\alpha\rVert / \lVert D\rVert`
+    in the projected measure (:math:`\lVert g\rVert^2 = \int g^2\cos\theta\,d\omega`); the moment widths
+    are Dupuy et al.'s conversions (:math:`E[\tilde x^2]` cut at ``max_theta``, where a GGX tail makes
+    it diverge). Two GGX lobes are suggested when one misfits by more than :data:`TWO_LOBE_MISFIT`
+    and two at most halve that misfit (:data:`TWO_LOBE_GAIN`).
 
     Parameters
     ----------
-    table : matfit.Table
-        As for :func:`extract_ndf`.
-    n_theta : int, optional
-        Nodes of the extracted :math:`D` (default 128).
-    masking : {"separable", "height_correlated", "smith_g1"}, optional
-        :math:`G_2` of the backscattering relation (default ``"separable"``).
-    max_theta_d, max_theta : float, optional
-        Which rows are read (radians; defaults 2 and 85 degrees), as for :func:`extract_ndf`.
-    diffuse : float or array_like (C,), optional
-        Diffuse floor subtracted first (1/sr, default 0).
-    channel : int, optional
-        The channel read (default: luminance / mean).
-    max_iter : int, optional
-        Iterations at most (default 100).
-    tol : float, optional
-        Convergence tolerance (default 1e-6).
+    table, n_theta, masking, max_theta_d, max_theta, diffuse, channel, max_iter, tol
+        As for :func:`extract_ndf` (same defaults).
 
     Returns
     -------
@@ -438,26 +410,13 @@ def ndf_start(table, n_theta=128, masking="separable", max_theta_d=math.radians(
         wide), ``misfit``), ``anisotropy`` (None for a table whose retro-reflection rows share
         one azimuth, as MERL's; else ``alpha_x``, ``alpha_y`` of an anisotropic GGX, ``ratio``
         of its widths, ``phi_wide`` the azimuth of the wide axis in [0, pi), ``rows``), ``f0``
-        (:math:`F(0)` per channel, the eigenvalue), ``ndf`` (the
-        :class:`~matfit.microfacet.TabulatedNDF`), ``iterations``, ``converged`` and ``rows``
-        (the number of rows read).
+        (:math:`F(0)` per channel, the eigenvalue), ``ndf`` (the :class:`~matfit.microfacet.TabulatedNDF`),
+        ``iterations``, ``converged`` and ``rows`` (the number of rows read).
 
     Raises
     ------
     ParameterError
         As :func:`extract_ndf`.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit import Table
-    >>> from matfit.microfacet import GGX, ndf_start
-    >>> t = np.linspace(0.0, 1.4, 60); c, s = np.cos(t), np.sin(t)
-    >>> w = np.stack([s, 0 * t, c], -1)
-    >>> f = 0.9 * np.asarray(GGX(0.3).D(w)) * 2 * c / (c + np.sqrt(c ** 2 + 0.09 * s ** 2)) / (4 * c ** 2)
-    >>> start = ndf_start(Table(wo=w, wi=w, values=f[:, None], channels="mono"), masking="smith_g1")
-    >>> round(start["alpha"], 3), round(float(start["f0"][0]), 2), start["lobes"], start["anisotropy"] is None
-    (0.3, 0.9, 1, True)
     """
     r = _extract(table, n_theta, masking, max_theta_d, max_theta, diffuse, channel, max_iter, tol)
     theta, d = r["theta"], r["d"]
@@ -477,35 +436,21 @@ def ndf_start(table, n_theta=128, masking="separable", max_theta_d=math.radians(
 
 
 def nearest_analytic(ndf, distribution="ggx"):
-    r"""The isotropic analytic distribution closest to a tabulated one: the width :math:`\alpha` of
-    least relative misfit :math:`\lVert D - D_\alpha\rVert / \lVert D\rVert` in the projected
-    measure (as :func:`ndf_start` fits the extracted :math:`D`).
+    r"""The isotropic analytic distribution closest to a tabulated one: the :math:`\alpha` of least
+    relative misfit in the projected measure, as :func:`ndf_start` fits.
 
     Parameters
     ----------
     ndf : TabulatedNDF
-        The tabulated distribution.
+        Another type raises ParameterError, as does an unknown ``distribution``.
     distribution : {"ggx", "beckmann"}, optional
         The analytic family (default ``"ggx"``).
 
     Returns
     -------
     dict
-        ``distribution``, ``alpha`` (float) and ``misfit`` (the relative L2 misfit, 0 for a table
-        of that family up to its interpolation).
-
-    Raises
-    ------
-    ParameterError
-        For an ``ndf`` that is not a :class:`~matfit.microfacet.TabulatedNDF` or an unknown
-        distribution.
-
-    Examples
-    --------
-    >>> from matfit.microfacet import GGX, TabulatedNDF, nearest_analytic
-    >>> near = nearest_analytic(TabulatedNDF.from_distribution(GGX(0.25)))
-    >>> round(near["alpha"], 3), near["misfit"] < 1e-3
-    (0.25, True)
+        ``distribution``, ``alpha`` (float) and ``misfit`` (relative L2, 0 for a table of that
+        family up to its interpolation).
     """
     if not isinstance(ndf, TabulatedNDF):
         raise ParameterError(f"nearest_analytic: ndf must be a matfit.microfacet.TabulatedNDF, got {type(ndf).__name__}")

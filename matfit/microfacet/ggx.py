@@ -30,15 +30,13 @@ __all__ = ["GGX"]
 class GGX(AbstractDistribution):
     """GGX (Trowbridge-Reitz) microfacet distribution, isotropic or anisotropic.
 
-    Visible normals are sampled by the spherical caps of Dupuy & Benyoub (2023); Smith's
-    :math:`G_1` is evaluated without division by :math:`v_z` (see the module docstring).
+    Visible normals by the spherical caps of Dupuy & Benyoub (2023); :math:`G_1` without a division
+    by :math:`v_z` (module docstring).
 
     Parameters
     ----------
-    alpha_x : array_like
-        Width along x, > 0 (clamped to :data:`~matfit.microfacet.ALPHA_MIN`). Differentiable.
-    alpha_y : array_like, optional
-        Width along y (default: ``alpha_x``, isotropic). Differentiable.
+    alpha_x, alpha_y : array_like
+        Widths, as for :class:`~matfit.microfacet.AbstractDistribution`.
 
     Examples
     --------

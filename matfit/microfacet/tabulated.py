@@ -1,34 +1,28 @@
-r"""An isotropic microfacet distribution tabulated over :math:`\theta_h`, with its Smith masking
+r"""An isotropic microfacet distribution tabulated over :math:`\theta_m`, with its Smith masking
 derived numerically.
 
-Representation
---------------
-:math:`D` is given at nodes :math:`0 = \theta_0 < \dots < \theta_{n-1} = \pi/2` and is **linear in**
-:math:`x = \sin^2\theta` between them. In that variable the projected solid angle is
-:math:`\cos\theta\,d\omega = \pi\,dx` (times a uniform azimuth), so
+Representation. :math:`D` is given at nodes :math:`0 = \theta_0 < \dots < \theta_{n-1} = \pi/2`;
+between them :math:`\log D` is linear in :math:`x = \sin^2\theta` where both nodes are > 0 (exact
+for exponential tails) and :math:`D` is linear where one is 0. In :math:`x` the projected solid
+angle is :math:`\cos\theta\,d\omega = \pi\,dx` (times a uniform azimuth), so the normalization
+:math:`\pi\int_0^1 D\,dx = 1` is exact for the tabulated function (a closed form per cell; the
+constructor scales the table to it), and :math:`D\cos` sampling inverts the CDF of each cell in
+closed form: :meth:`~TabulatedNDF.pdf_dcos` is exactly the density of :meth:`~TabulatedNDF.sample_dcos`.
 
-* the projected-area normalization :math:`\int D\cos\theta_m\,d\omega_m = \pi\int_0^1 D\,dx = 1` is
-  exact for the tabulated function (the trapezoid rule in :math:`x`), and the constructor scales the
-  table to it;
-* :math:`D\cos` sampling inverts a piecewise-quadratic CDF in closed form, so :meth:`pdf_dcos` is
-  exactly the density of :meth:`sample_dcos`.
-
-Smith masking. For an isotropic :math:`D` normalized as above, :math:`\int m\,D(m)\,d\omega_m = n`,
-so the projected area of the microsurface seen from :math:`v` is
-:math:`\int \max(0, v\cdot m) D\,d\omega_m = \cos\theta_v + B(\cos\theta_v)` with the *back-facing*
-area
+Smith masking. For a normalized isotropic :math:`D`, :math:`\int m\,D(m)\,d\omega_m = n`, so the
+projected area seen from :math:`v` is :math:`\int \max(0, v\cdot m) D\,d\omega_m = \mu + B(\mu)`,
+:math:`\mu = \cos\theta_v`, with the *back-facing* area
 
 .. math::
     B(\mu) = \int \max(0, -v\cdot m)\,D(m)\,d\omega_m
            = \int_{\arcsin\mu}^{\pi/2} D(\theta_m)\,2\Big(\sqrt{a^2 - b^2} - b\arccos\frac{b}{a}\Big)
              \sin\theta_m\,d\theta_m,\quad a = \sin\theta_v\sin\theta_m,\ b = \mu\cos\theta_m
 
-(the azimuthal integral done in closed form). Hence
-:math:`\Lambda(v) = B(\mu)/\mu` and :math:`G_1 = \mu/(\mu + B(\mu))`, with no cancellation at the
-normal (:math:`B(1) = 0`). :math:`B` is computed once at construction (Gauss-Legendre on every
-cell of :math:`D`, from the onset :math:`\theta_m = \arcsin\mu` of the back-facing normals) on nodes
-:math:`\mu_k = (k/(m-1))^2`, dense towards grazing where :math:`B` varies on the scale of the lobe,
-and interpolated linearly in :math:`\mu`.
+(the azimuthal integral in closed form). Hence :math:`\Lambda(v) = B(\mu)/\mu` and
+:math:`G_1 = \mu/(\mu + B(\mu))`, with no cancellation at the normal (:math:`B(1) = 0`). :math:`B` is
+computed once at construction (Gauss-Legendre on every cell of :math:`D` from the onset
+:math:`\theta_m = \arcsin\mu` of the back-facing normals) on nodes :math:`\mu_k = (k/(m-1))^2`,
+dense towards grazing where :math:`B` varies on the scale of the lobe, and interpolated linearly.
 
 References
 ----------
@@ -59,7 +53,7 @@ _GL_ORDER = 6
 
 
 def ndf_grid(n=256):
-    r"""The default nodes of a tabulated distribution: :math:`\theta_j = (j/(n-1))^2\,\pi/2`.
+    r"""The default nodes of a tabulated distribution: :math:`\theta_j = (j/(n-1))^2\,\pi/2` (radians).
 
     Square-root spacing (as MERL's :math:`\theta_h` axis): the first cells resolve lobes down to
     :math:`\alpha \approx 10^{-2}` and the grid still reaches grazing.
@@ -67,24 +61,11 @@ def ndf_grid(n=256):
     Parameters
     ----------
     n : int, optional
-        Number of nodes, >= 3 (default 256).
+        Number of nodes, >= 3 (default 256); ParameterError otherwise.
 
     Returns
     -------
     numpy.ndarray, shape (n,)
-        Angles in radians, from 0 to :math:`\pi/2`.
-
-    Raises
-    ------
-    ParameterError
-        For ``n < 3``.
-
-    Examples
-    --------
-    >>> from matfit.microfacet import ndf_grid
-    >>> t = ndf_grid(5)
-    >>> float(t[0]), round(float(t[-1]), 6), round(float(t[2] / t[-1]), 6)
-    (0.0, 1.570796, 0.25)
     """
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 3:
         raise ParameterError(f"ndf_grid: n must be an integer >= 3, got {n!r}")
@@ -92,7 +73,7 @@ def ndf_grid(n=256):
 
 
 def _check_table(owner, theta, d):
-    """``theta``, ``d`` as float64 numpy arrays, checked (see :class:`TabulatedNDF`)."""
+    """``theta``, ``d`` as float64 numpy arrays, checked (see :class:`TabulatedNDF`) and extended to [0, pi/2]."""
     for name, v in (("theta", theta), ("d", d)):
         if isinstance(v, jax.core.Tracer):
             raise ParameterError(f"{owner}: {name} must be concrete (a table is built outside jax.jit), found a tracer")
@@ -127,8 +108,8 @@ def _log_ratio(d):
 
 
 def _cell_masses(x, d):
-    r""":math:`\int D\,dx` over every cell (the logarithmic mean of its ends times its width where
-    :math:`D` is log-linear, the trapezoid elsewhere)."""
+    r""":math:`\int D\,dx` over every cell: the logarithmic mean of its ends times its width where
+    :math:`D` is log-linear, the trapezoid elsewhere."""
     geo, lr = _log_ratio(d)
     small = np.abs(lr) < 1e-6
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -148,30 +129,19 @@ def _values_in_cells(x, d, j, xq):
 
 
 def interpolate_ndf(theta, d, theta_q):
-    r""":math:`D` of a table at angles ``theta_q``, interpolated as :class:`TabulatedNDF` does
-    (:math:`\log D` linear in :math:`\sin^2\theta` between nodes, :math:`D` linear where a node is
-    0); numpy, float64, no normalization.
+    """:math:`D` of a table at angles ``theta_q``, interpolated as :class:`TabulatedNDF` does (numpy,
+    float64, not normalized).
 
     Parameters
     ----------
-    theta : array_like, shape (n,)
-        Increasing node angles in [0, pi/2] (radians).
-    d : array_like, shape (n,)
-        :math:`D` at the nodes, >= 0.
+    theta, d : array_like, shape (n,)
+        Increasing node angles in [0, pi/2] (radians) and :math:`D` there, >= 0.
     theta_q : array_like
         Query angles in [0, pi/2].
 
     Returns
     -------
     numpy.ndarray, shape of ``theta_q``
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit.microfacet import interpolate_ndf
-    >>> t = np.array([0.0, 0.5, np.pi / 2]); d = np.exp(-np.sin(t) ** 2)
-    >>> round(float(interpolate_ndf(t, d, 0.25)), 12) == round(float(np.exp(-np.sin(0.25) ** 2)), 12)
-    True
     """
     theta = np.asarray(theta, np.float64)
     d = np.asarray(d, np.float64)
@@ -182,63 +152,36 @@ def interpolate_ndf(theta, d, theta_q):
 
 
 def projected_mass(theta, d):
-    r""":math:`\int D(m)\cos\theta_m\,d\omega_m = \pi\int_0^1 D\,dx` of a table, exact for the
-    function the table defines (:class:`TabulatedNDF`: :math:`\log D` linear in
-    :math:`x = \sin^2\theta` between nodes, :math:`D` linear where a node is 0).
+    r""":math:`\int D(m)\cos\theta_m\,d\omega_m = \pi\int_0^1 D\,dx` of a table, exact for the function it
+    defines (:class:`TabulatedNDF`).
 
     Parameters
     ----------
-    theta : array_like, shape (n,)
-        Increasing node angles in [0, pi/2] (radians).
-    d : array_like, shape (n,)
-        :math:`D` at the nodes (1/sr), >= 0.
+    theta, d : array_like, shape (n,)
+        Increasing node angles in [0, pi/2] (radians) and :math:`D` there (1/sr), >= 0.
 
     Returns
     -------
     float
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit.microfacet import projected_mass
-    >>> t = np.linspace(0.0, np.pi / 2, 50)
-    >>> round(projected_mass(t, np.full(50, 1 / np.pi)), 12)  # D = 1/pi: a Lambertian microsurface
-    1.0
     """
     x = np.sin(np.asarray(theta, np.float64)) ** 2
     return float(np.pi * np.sum(_cell_masses(x, np.asarray(d, np.float64))))
 
 
 def back_facing_area(theta, d, mu):
-    r"""The back-facing projected area :math:`B(\mu) = \int \max(0, -v\cdot m)\,D(m)\,d\omega_m`
-    of an isotropic table seen from :math:`\cos\theta_v = \mu` (see the module docstring).
-
-    With :math:`D` normalized (:func:`projected_mass` = 1), Smith's
-    :math:`\Lambda(v) = B(\mu)/\mu`.
+    r"""The back-facing projected area :math:`B(\mu)` of the module docstring, for a table interpolated
+    as :class:`TabulatedNDF` does; with :math:`D` normalized, Smith's :math:`\Lambda = B(\mu)/\mu`.
 
     Parameters
     ----------
-    theta : array_like, shape (n,)
-        Increasing node angles in [0, pi/2], radians; :math:`D` between them as
-        :class:`TabulatedNDF` interpolates it.
-    d : array_like, shape (n,)
-        :math:`D` at the nodes, >= 0.
+    theta, d : array_like, shape (n,)
+        Increasing node angles in [0, pi/2] (radians) and :math:`D` there, >= 0.
     mu : array_like, shape (m,)
         Cosines of the viewing directions, in [0, 1].
 
     Returns
     -------
     numpy.ndarray, shape (m,)
-        float64.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit.microfacet import back_facing_area
-    >>> t = np.linspace(0.0, np.pi / 2, 200)
-    >>> b = back_facing_area(t, np.full(200, 1 / np.pi), np.array([1.0, 0.0]))
-    >>> float(b[0]), round(float(b[1]), 6)  # none at the normal; at grazing: 1/2 for D = 1/pi
-    (0.0, 0.5)
     """
     theta = np.asarray(theta, np.float64)
     mu = np.clip(np.asarray(mu, np.float64), 0.0, 1.0)
@@ -249,10 +192,9 @@ def back_facing_area(theta, d, mu):
 
 @functools.lru_cache(maxsize=8)
 def _back_facing_kernel(theta_bytes, mu_bytes):
-    """What :func:`back_facing_area` needs of the nodes and the cosines alone (an NDF extraction
-    calls it with the same ones at every iteration): ``x = sin^2`` of the nodes, the cell ``j``
-    and ``sin^2`` of every Gauss-Legendre point (m, n-1, order), and the weight of ``D`` there
-    (the interval length, the quadrature weight and the projection kernel times ``sin``)."""
+    """What :func:`back_facing_area` needs of the nodes and cosines alone (cached: an extraction calls
+    it with the same ones every iteration): ``x = sin^2`` of the nodes, the cell ``j`` and ``sin^2``
+    of every Gauss-Legendre point (m, n-1, order), and the weight of ``D`` there."""
     theta = np.frombuffer(theta_bytes, np.float64)
     mu = np.frombuffer(mu_bytes, np.float64)
     x = np.sin(theta) ** 2
@@ -276,39 +218,33 @@ def _back_facing_kernel(theta_bytes, mu_bytes):
 
 
 class TabulatedNDF(AbstractDistribution):
-    r"""An isotropic microfacet distribution tabulated over :math:`\theta_m`, with Smith masking
-    derived from it (see the module docstring for the representation and the formulas).
+    r"""An isotropic microfacet distribution tabulated over :math:`\theta_m`, with Smith masking derived
+    from it (the module docstring has the representation and the formulas).
 
-    The table is scaled so that :math:`\int D\cos\theta_m\,d\omega_m = 1`; :math:`\Lambda` is
-    computed once here. Sampling: :meth:`sample_dcos` (exact inverse CDF); there is no
-    visible-normal sampler. The tables are array leaves (their dtype is that of ``d``, the
-    default float for integer input); they are data, not fit parameters: :math:`\Lambda` is not
-    recomputed when :math:`D` changes under ``jax.grad``. Build it outside ``jax.jit``.
-
-    ``alpha_x`` = ``alpha_y`` hold the width of the GGX (or Beckmann) lobe of the same peak,
-    :math:`1/\sqrt{\pi D(0)}`, for information; the tabulated functions do not read them.
+    The table is scaled so that :math:`\int D\cos\theta_m\,d\omega_m = 1`; :math:`\Lambda` is computed
+    once here, so it is not recomputed when :math:`D` changes under ``jax.grad`` (the tables are data,
+    not fit parameters; their dtype is that of ``d``, the default float for integer input). Build it
+    outside ``jax.jit``. No visible-normal sampler. ``alpha_x`` = ``alpha_y`` = :math:`1/\sqrt{\pi D(0)}`,
+    the width of the GGX (or Beckmann) lobe of the same peak, for information only.
 
     Parameters
     ----------
     theta : array_like, shape (n,)
-        Node angles :math:`\theta_m` in radians, strictly increasing within :math:`[0, \pi/2]`;
-        the table is extended to 0 and :math:`\pi/2` with its end values.
+        Node angles in radians, strictly increasing within :math:`[0, \pi/2]`; the table is extended
+        to 0 and :math:`\pi/2` with its end values.
     d : array_like, shape (n,)
-        :math:`D` at the nodes, >= 0, any scale (normalized here); linear in
-        :math:`\sin^2\theta` in between.
+        :math:`D` at the nodes, >= 0, any scale (normalized here).
     n_lambda : int, optional
-        Number of nodes of the :math:`\Lambda` table, :math:`\mu_k = (k/(m-1))^2` (default 256).
+        Nodes :math:`\mu_k` of the :math:`\Lambda` table (default 256).
 
     Attributes
     ----------
-    x_nodes : jax.Array, shape (n,)
-        :math:`\sin^2\theta` at the nodes.
-    d_nodes : jax.Array, shape (n,)
-        The normalized :math:`D` at the nodes.
+    x_nodes, d_nodes : jax.Array, shape (n,)
+        :math:`\sin^2\theta` and the normalized :math:`D` at the nodes.
     cdf : jax.Array, shape (n,)
         :math:`\pi\int_0^{x_j} D\,dx`: 0 at the normal, 1 at the horizon.
     b_nodes : jax.Array, shape (m,)
-        The back-facing area :math:`B` at :math:`\mu_k` (:func:`back_facing_area`).
+        :math:`B(\mu_k)` (:func:`back_facing_area`).
 
     Raises
     ------
@@ -363,31 +299,9 @@ class TabulatedNDF(AbstractDistribution):
 
     @classmethod
     def from_function(cls, fn, n=256, n_lambda=256, dtype=None):
-        r"""Tabulate ``fn(theta)`` on :func:`ndf_grid` nodes.
+        """Tabulate ``fn(theta)`` (:math:`D`, any scale, of a numpy array of angles) on ``n`` :func:`ndf_grid` nodes.
 
-        Parameters
-        ----------
-        fn : callable
-            :math:`D(\theta_m)` (any scale) of a numpy array of angles in radians, >= 0.
-        n : int, optional
-            Number of nodes (default 256).
-        n_lambda : int, optional
-            Nodes of the :math:`\Lambda` table (default 256).
-        dtype : numpy dtype, optional
-            Float type of the tables (default: JAX's default float).
-
-        Returns
-        -------
-        TabulatedNDF
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from matfit.microfacet import TabulatedNDF
-        >>> tab = TabulatedNDF.from_function(lambda t: np.cos(t) ** 2)  # normalized Blinn-Phong, e = 2
-        >>> round(float(tab.d_nodes[0] * np.pi / 2), 4)  # D(0) = (e + 2) / (2 pi)
-        1.0
-        """
+        ``dtype`` defaults to JAX's default float."""
         theta = ndf_grid(n)
         d = np.asarray(fn(theta), np.float64)
         dtype = jnp.result_type(float) if dtype is None else dtype
@@ -397,32 +311,7 @@ class TabulatedNDF(AbstractDistribution):
     def from_distribution(cls, dist, n=256, n_lambda=256, dtype=None):
         r"""Tabulate an isotropic distribution's :math:`D` (its :math:`\Lambda` is derived anew).
 
-        Parameters
-        ----------
-        dist : AbstractDistribution
-            An isotropic distribution (``alpha_x == alpha_y``), e.g. ``GGX(0.3)``.
-        n : int, optional
-            Number of nodes (default 256).
-        n_lambda : int, optional
-            Nodes of the :math:`\Lambda` table (default 256).
-        dtype : numpy dtype, optional
-            Float type of the tables (default: that of ``dist.alpha_x``).
-
-        Returns
-        -------
-        TabulatedNDF
-
-        Raises
-        ------
-        ParameterError
-            For an anisotropic ``dist``.
-
-        Examples
-        --------
-        >>> from matfit.microfacet import Beckmann, TabulatedNDF
-        >>> round(float(TabulatedNDF.from_distribution(Beckmann(0.2)).alpha_x), 4)
-        0.2
-        """
+        ``dtype`` defaults to that of ``dist.alpha_x``; an anisotropic ``dist`` raises ParameterError."""
         ax, ay = np.asarray(dist.alpha_x, np.float64), np.asarray(dist.alpha_y, np.float64)
         if ax.shape != () or not np.allclose(ax, ay, rtol=1e-6):
             raise ParameterError(f"TabulatedNDF.from_distribution: dist must be isotropic with scalar alphas, "
@@ -440,8 +329,7 @@ class TabulatedNDF(AbstractDistribution):
         return int(self.x_nodes.shape[-1])
 
     def _cell(self, x, mz):
-        """Cell index j (x_j <= x < x_{j+1}) of sin^2 theta = x, cos theta = mz, and the weight of
-        x in it."""
+        """Cell j (x_j <= x < x_{j+1}) of sin^2 theta = x, cos theta = mz, and the weight of x in it."""
         xn = self.x_nodes
         n1 = xn.shape[-1] - 1
         if self.sqrt_grid:  # theta_j = (j / n1)^2 pi / 2, then one step against rounding

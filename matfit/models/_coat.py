@@ -7,11 +7,11 @@ or a :class:`RoughDielectric`. Its energy transmittance for light arriving at
 .. math:: T(\mu) = \int_{[0,1]^2} (1 - F(\omega_o\cdot m(u)))\,w_t(u)\,\eta_p^2\,du
 
 the transmission lobe's sample weights integrated in primary-sample space by a tensor
-Gauss-Legendre rule (``order`` points per axis), tabulated at ``nodes`` cosines (crowded towards grazing as :math:`\mu_j = (j/(n-1))^2`, the
-first evaluated at :math:`\mu = 10^{-3}`) and interpolated linearly. The internal diffuse reflectance of the coat is
-:math:`R_{int} = 1 - \bar T/\eta^2` with :math:`\bar T = 2\int_0^1 T(\mu)\mu\,d\mu`, which is
-the exact hemispherical average of the internal Fresnel reflectance for a smooth coat and keeps
-reciprocity and energy balance for a rough one.
+Gauss-Legendre rule (``order`` points per axis), tabulated at ``nodes`` cosines (crowded towards
+grazing as :math:`\mu_j = (j/(n-1))^2`, the first evaluated at :math:`\mu = 10^{-3}`) and
+interpolated linearly. The coat's internal diffuse reflectance is :math:`R_{int} = 1 - \bar T/\eta^2`
+with :math:`\bar T = 2\int_0^1 T(\mu)\mu\,d\mu`: the exact hemispherical average of the internal
+Fresnel reflectance for a smooth coat, and reciprocal and energy-conserving for a rough one.
 """
 
 from __future__ import annotations
@@ -32,27 +32,7 @@ COAT_NODES = 24
 
 
 def make_coat(alpha, eta, distribution="ggx", masking="separable"):
-    """A smooth coat when ``alpha`` is a concrete 0, else a rough one.
-
-    Parameters
-    ----------
-    alpha : array_like
-        Width of the coat's distribution (traced values give a rough coat).
-    eta : array_like
-        Index of the coat relative to the outside.
-    distribution, masking : str, optional
-        Options of a rough coat.
-
-    Returns
-    -------
-    SmoothDielectric or RoughDielectric
-
-    Examples
-    --------
-    >>> from matfit.models._coat import make_coat
-    >>> type(make_coat(0.0, 1.5)).__name__, type(make_coat(0.1, 1.5)).__name__
-    ('SmoothDielectric', 'RoughDielectric')
-    """
+    """A smooth coat when ``alpha`` is a concrete 0, else (traced values too) a rough one."""
     try:
         smooth = float(np.max(np.asarray(alpha))) == 0.0
     except Exception:  # traced alpha: rough
@@ -63,82 +43,22 @@ def make_coat(alpha, eta, distribution="ggx", masking="separable"):
 
 
 def is_smooth(coat):
-    """True for a smooth coat (a :class:`SmoothDielectric`).
-
-    Parameters
-    ----------
-    coat : SmoothDielectric or RoughDielectric
-        The coat.
-
-    Returns
-    -------
-    bool
-
-    Examples
-    --------
-    >>> from matfit.models import SmoothDielectric
-    >>> from matfit.models._coat import is_smooth
-    >>> is_smooth(SmoothDielectric(1.5))
-    True
-    """
+    """True for a smooth coat (a :class:`SmoothDielectric`)."""
     return isinstance(coat, SmoothDielectric)
 
 
 def coat_reflection(coat, wo, wi):
-    """Value of the coat's (non-delta) reflection lobe: 0 for a smooth coat and wherever the
-    pair is not a reflection pair above the surface.
-
-    Parameters
-    ----------
-    coat : SmoothDielectric or RoughDielectric
-        The coat.
-    wo, wi : array_like, shape (..., 3)
-        Unit directions.
-
-    Returns
-    -------
-    jax.Array, shape (...)
-
-    Examples
-    --------
-    >>> import jax.numpy as jnp
-    >>> from matfit.models import RoughDielectric
-    >>> from matfit.models._coat import coat_reflection
-    >>> up = jnp.array([0.0, 0.0, 1.0])
-    >>> bool(coat_reflection(RoughDielectric(0.2, 1.5), up, up) > 0)
-    True
-    """
+    """Value ``(...)`` of the coat's (non-delta) reflection lobe: 0 for a smooth coat and wherever
+    the pair is not a reflection pair above the surface."""
     if is_smooth(coat):
         return jnp.zeros(jnp.broadcast_shapes(wo.shape, wi.shape)[:-1], jnp.result_type(wo))
     return jnp.where(valid_reflection(wo, wi), coat.eval(wo, wi)[..., 0], 0)
 
 
 def coat_reflection_pairs(coat, pairs):
-    """:func:`coat_reflection` of a rough coat on prepared pairs (:class:`~matfit.models.SoAPairs`):
-    the lobe ``D G2 / (4 cos cos)`` times the dielectric Fresnel at ``wo . h``; 0 where the pair
-    is invalid or the coat is index-matched (it then reflects nothing).
-
-    Parameters
-    ----------
-    coat : RoughDielectric
-        The rough coat.
-    pairs : SoAPairs
-        Prepared direction pairs.
-
-    Returns
-    -------
-    jax.Array, shape (...)
-
-    Examples
-    --------
-    >>> import jax.numpy as jnp
-    >>> from matfit.models import RoughDielectric, SoAPairs
-    >>> from matfit.models._coat import coat_reflection, coat_reflection_pairs
-    >>> coat = RoughDielectric(0.2, 1.5)
-    >>> wo = jnp.array([[0.0, 0.6, 0.8]]); wi = jnp.array([[0.0, -0.6, 0.8]])
-    >>> bool(jnp.allclose(coat_reflection_pairs(coat, SoAPairs.of(wo, wi)), coat_reflection(coat, wo, wi)))
-    True
-    """
+    """:func:`coat_reflection` of a rough coat on prepared pairs: the lobe ``D G2 / (4 cos cos)``
+    times the dielectric Fresnel at ``wo . h``; 0 where a pair is invalid or the coat is
+    index-matched (it then reflects nothing)."""
     F = fresnel_dielectric(pairs.cos_d, coat.eta)
     return jnp.where(coat.index_matched(), 0, coat.reflection_lobe(pairs) * F)
 
@@ -149,32 +69,9 @@ def _gl01(n, dtype):
 
 
 def coat_transmittance_table(coat, order=COAT_ORDER, nodes=COAT_NODES, dtype=None):
-    """Tabulated energy transmittance ``(mu, T(mu))`` of a rough coat (see the module docstring).
-
-    Parameters
-    ----------
-    coat : RoughDielectric
-        The rough coat.
-    order : int, optional
-        Gauss-Legendre order per axis of the primary-sample quadrature.
-    nodes : int, optional
-        Number of tabulated cosines, ``mu_j = (j / (nodes - 1))^2``.
-    dtype : dtype, optional
-        Floating type of the table (default: that of ``coat.eta``).
-
-    Returns
-    -------
-    mu, T : jax.Array, shape (nodes,)
-        The cosines and the transmittance there.
-
-    Examples
-    --------
-    >>> from matfit.models import RoughDielectric
-    >>> from matfit.models._coat import coat_transmittance_table
-    >>> mu, T = coat_transmittance_table(RoughDielectric(0.2, 1.5), order=4, nodes=5)
-    >>> mu.shape, bool(0.9 < float(T[-1]) < 1.0)
-    ((5,), True)
-    """
+    """Tabulated energy transmittance ``(mu, T)`` of a rough coat, each ``(nodes,)`` (module
+    docstring): ``order`` Gauss-Legendre points per axis, ``nodes`` cosines
+    ``mu_j = (j / (nodes - 1))^2``, ``dtype`` default that of ``coat.eta``."""
     dtype = jnp.result_type(coat.eta, float) if dtype is None else dtype
     # Nodes crowd towards grazing incidence (mu = s^2), where T changes fastest.
     mu = jnp.linspace(0.0, 1.0, nodes, dtype=dtype) ** 2
@@ -205,30 +102,9 @@ def coat_transmittance_table(coat, order=COAT_ORDER, nodes=COAT_NODES, dtype=Non
 
 
 def coat_transmittance(coat, mu, table=None):
-    """Energy transmittance of the coat at incidence cosine ``mu``: ``1 - F(mu)`` when smooth,
-    the table linearly interpolated when rough.
-
-    Parameters
-    ----------
-    coat : SmoothDielectric or RoughDielectric
-        The coat.
-    mu : array_like
-        Cosines, clamped to [0, 1].
-    table : tuple of jax.Array, optional
-        :func:`coat_transmittance_table` of a rough coat (built when not given).
-
-    Returns
-    -------
-    jax.Array
-        Of the shape of ``mu``.
-
-    Examples
-    --------
-    >>> from matfit.models import SmoothDielectric
-    >>> from matfit.models._coat import coat_transmittance
-    >>> round(float(coat_transmittance(SmoothDielectric(1.5), 1.0)), 6)  # 1 - ((1.5 - 1) / 2.5)^2
-    0.96
-    """
+    """Energy transmittance at incidence cosines ``mu`` (clamped to [0, 1]): ``1 - F(mu)`` when
+    smooth, the ``table`` (:func:`coat_transmittance_table`, built when None) interpolated
+    linearly when rough."""
     mu = jnp.clip(jnp.asarray(mu), 0, 1)
     if is_smooth(coat):
         return 1 - fresnel_dielectric(mu, coat.eta)
@@ -246,29 +122,8 @@ def coat_transmittance(coat, mu, table=None):
 
 
 def coat_internal_reflectance(coat, table=None, order=64):
-    """Hemispherical internal reflectance ``R_int = 1 - Tbar / eta^2`` of the coat.
-
-    Parameters
-    ----------
-    coat : SmoothDielectric or RoughDielectric
-        The coat.
-    table : tuple of jax.Array, optional
-        :func:`coat_transmittance_table` of a rough coat.
-    order : int, optional
-        Gauss-Legendre order of the average over the cosine.
-
-    Returns
-    -------
-    jax.Array
-        A scalar (or the batch shape of ``coat.eta``).
-
-    Examples
-    --------
-    >>> from matfit.models import SmoothDielectric
-    >>> from matfit.models._coat import coat_internal_reflectance
-    >>> round(float(coat_internal_reflectance(SmoothDielectric(1.5))), 3)  # the internal Fresnel average
-    0.596
-    """
+    """Hemispherical internal reflectance ``R_int = 1 - Tbar / eta^2`` of the coat (``order``:
+    Gauss-Legendre points of the average over the cosine)."""
     if is_smooth(coat):
         return fresnel_dielectric_average(1 / coat.eta, n=order)
     x, w = _gl01(order, jnp.result_type(coat.eta, float))

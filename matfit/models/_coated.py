@@ -14,22 +14,12 @@ from ._coat import coat_transmittance_table, is_smooth
 
 
 class AbstractCoatedBSDF(AbstractBSDF):
-    """A model with a dielectric ``coat`` on top: the coat lobe plus a lobe under it.
+    """A model with a dielectric ``coat`` (a :class:`SmoothDielectric` or :class:`RoughDielectric`,
+    seen from outside) on top: the coat lobe plus a lobe under it.
 
     Subclasses give ``_eval_t``/``_pdf_t`` (eval and pdf with the coat's transmittance table
     passed in, so that one sample builds it once), ``_p_coat`` (probability of sampling the coat
     lobe) and ``_sample_under`` (a direction from the lobe under the coat).
-
-    Attributes
-    ----------
-    coat : SmoothDielectric or RoughDielectric
-        The coat, seen from outside.
-
-    Examples
-    --------
-    >>> from matfit.models import Plastic
-    >>> Plastic(0.5).has_delta_lobe, Plastic(0.5, alpha=0.1).has_delta_lobe  # a smooth coat's mirror lobe
-    (True, False)
     """
 
     coat: AbstractBSDF

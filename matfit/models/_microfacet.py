@@ -20,6 +20,9 @@ class AbstractMicrofacetBSDF(AbstractBSDF):
     """A model built on one microfacet distribution: the distribution's fields, its reflection
     lobe on prepared pairs, and the sampling of its normals.
 
+    The reflection lobe is sampled as ``wi = reflect(wo, m)`` with ``m`` drawn as :attr:`sampling`
+    says; its density is ``pdf_m(h) / (4 wo.h)``, 0 below the horizon (an invalid sample).
+
     Attributes
     ----------
     alpha : jax.Array
@@ -37,8 +40,8 @@ class AbstractMicrofacetBSDF(AbstractBSDF):
     --------
     >>> from matfit.models import AbstractMicrofacetBSDF, RoughConductor
     >>> m = RoughConductor(0.3, 1.5, 3.0, distribution="blinn_phong")
-    >>> isinstance(m, AbstractMicrofacetBSDF), m.sampling  # Blinn-Phong samples D cos
-    (True, 'dcos')
+    >>> isinstance(m, AbstractMicrofacetBSDF), m.sampling, type(m.dist()).__name__  # Blinn-Phong samples D cos
+    (True, 'dcos', 'BlinnPhong')
     """
 
     alpha: jnp.ndarray
@@ -67,19 +70,7 @@ class AbstractMicrofacetBSDF(AbstractBSDF):
         self.sampling = sampling
 
     def dist(self):
-        """The microfacet distribution at the model's parameters.
-
-        Returns
-        -------
-        matfit.microfacet.AbstractDistribution
-            Of kind :attr:`distribution`, widths ``(alpha, alpha_y)``.
-
-        Examples
-        --------
-        >>> from matfit.models import RoughConductor
-        >>> type(RoughConductor(0.3, 1.5, 3.0, distribution="beckmann").dist()).__name__
-        'Beckmann'
-        """
+        """The microfacet distribution of kind :attr:`distribution`, widths ``(alpha, alpha_y)``."""
         return make_distribution(self.distribution, self.alpha, self.alpha_y)
 
     def _sample_m(self, d, wo, u2):
@@ -93,88 +84,25 @@ class AbstractMicrofacetBSDF(AbstractBSDF):
         return d.pdf_dcos(m)
 
     def reflection_sample(self, wo, u2):
-        """Sample the microfacet reflection lobe: ``wi = reflect(wo, m)`` with ``m`` sampled as
-        :attr:`sampling` says.
-
-        Parameters
-        ----------
-        wo : array_like, shape (..., 3)
-            Unit directions to the viewer.
-        u2 : array_like, shape (..., 2)
-            Uniform numbers in [0, 1).
-
-        Returns
-        -------
-        jax.Array, shape (..., 3)
-            Unit directions (possibly below the horizon: an invalid sample, pdf 0).
-
-        Examples
-        --------
-        >>> import jax.numpy as jnp
-        >>> from matfit.models import RoughConductor
-        >>> wi = RoughConductor(0.05, 1.5, 3.0).reflection_sample(jnp.array([0.6, 0.0, 0.8]), jnp.array([0.5, 0.5]))
-        >>> bool(wi[0] < -0.5)  # near the mirror direction of a narrow lobe
-        True
-        """
+        """Sample the reflection lobe from uniform ``u2`` ``(..., 2)``: ``wi = reflect(wo, m)``."""
         return reflect(wo, self._sample_m(self.dist(), wo, u2))
 
     def reflection_pdf(self, wo, wi):
-        """Density of :meth:`reflection_sample`: ``pdf_m(h) / (4 wo.h)`` (0 below the horizon).
-
-        Parameters
-        ----------
-        wo, wi : array_like, shape (..., 3)
-            Unit directions.
-
-        Returns
-        -------
-        jax.Array, shape (...)
-            Density in 1/sr.
-
-        Examples
-        --------
-        >>> import jax.numpy as jnp
-        >>> from matfit.models import RoughConductor
-        >>> m = RoughConductor(0.3, 1.5, 3.0)
-        >>> wo = jnp.array([0.0, 0.6, 0.8]); wi = jnp.array([0.0, -0.6, 0.8])
-        >>> bool(jnp.isclose(m.reflection_pdf(wo, wi), m.pdf(wo, wi))), float(m.reflection_pdf(wo, -wi))
-        (True, 0.0)
-        """
+        """Density of :meth:`reflection_sample`: ``pdf_m(h) / (4 wo.h)`` (0 below the horizon)."""
         ok = valid_reflection(wo, wi)
         h = normalize(wo + wi)
         p = safe_div(self._pdf_m(self.dist(), wo, h), 4 * dot(wo, h))
         return jnp.where(ok, p, 0)
 
     def reflection_lobe(self, pairs):
-        """``D G2 / (4 cos theta_o cos theta_i)`` of the reflection pairs (``(...)``, 0 where a pair
-        is invalid), the Fresnel-free part of a reflection lobe, from prepared pairs
-        (:class:`~matfit.models.SoAPairs`): an isotropic lobe reads only cosines and ``h``'s
-        squared sine, already guarded per pair.
-
-        D G2 is one quotient, 0 on invalid pairs through its denominator (inf there): XLA
-        computes it in one loop of its own (a guard outside a division would be recomputed in
-        every loop that reads it), so that the per-channel work of a lobe (its Fresnel factor)
-        reads only this and the Fresnel cosine. ``1 / (4 cos cos)`` stays a factor of its own:
-        inside the quotient, float32 gradients overflow near grazing at alpha = ALPHA_MIN.
-
-        Parameters
-        ----------
-        pairs : SoAPairs
-            Prepared reflection pairs.
-
-        Returns
-        -------
-        jax.Array, shape (...)
-
-        Examples
-        --------
-        >>> import jax.numpy as jnp
-        >>> from matfit.models import RoughConductor, SoAPairs
-        >>> up = jnp.array([[0.0, 0.0, 1.0]])
-        >>> m = RoughConductor(0.5, 1.0, 0.0)
-        >>> round(float(m.reflection_lobe(SoAPairs.of(up, up))[0] * 4 * jnp.pi * 0.25), 6)  # D(0) = 1/(pi a^2)
-        1.0
-        """
+        """``D G2 / (4 cos theta_o cos theta_i)`` of prepared pairs, ``(...)``, 0 where a pair is
+        invalid: the Fresnel-free part of a reflection lobe."""
+        # An isotropic lobe reads only cosines and h's squared sine, already guarded per pair.
+        # D G2 is one quotient, 0 on invalid pairs through its denominator (inf there): XLA
+        # computes it in one loop of its own (a guard outside a division would be recomputed in
+        # every loop that reads it), so that the per-channel work of a lobe (its Fresnel factor)
+        # reads only this and the Fresnel cosine. 1 / (4 cos cos) stays a factor of its own:
+        # inside the quotient, float32 gradients overflow near grazing at alpha = ALPHA_MIN.
         if self.alpha_y is None:
             wo, wi, h, ok = pairs.isotropic()
             num, den, _ = self.dist().reflection_ratio(wo, wi, h, self.masking)

@@ -28,65 +28,18 @@ as_param = as_float
 
 
 def as_channels(x):
-    """A floating JAX array with at least one axis: the last axis holds the colour channels.
-
-    Parameters
-    ----------
-    x : array_like
-        A scalar or an array ``(..., C)``.
-
-    Returns
-    -------
-    jax.Array, shape (..., C)
-        A scalar becomes shape ``(1,)``.
-
-    Examples
-    --------
-    >>> from matfit.models._params import as_channels
-    >>> as_channels(0.5).shape
-    (1,)
-    """
+    """A floating JAX array ``(..., C)`` whose last axis holds the colour channels (a scalar: ``(1,)``)."""
     return jnp.atleast_1d(as_param(x))
 
 
 def channel_count(*params):
-    """The colour channel count ``C`` of parameters whose last axes broadcast.
-
-    Parameters
-    ----------
-    *params : jax.Array
-        Arrays of shape ``(..., C)`` or ``(..., 1)``.
-
-    Returns
-    -------
-    int
-
-    Examples
-    --------
-    >>> import jax.numpy as jnp
-    >>> from matfit.models._params import channel_count
-    >>> channel_count(jnp.ones(1), jnp.ones((4, 3)))
-    3
-    """
+    """The colour channel count ``C`` of arrays ``(..., C)`` or ``(..., 1)`` whose last axes broadcast."""
     return jnp.broadcast_shapes(*(jnp.shape(p) for p in params))[-1]
 
 
 def check_channels(owner, **params) -> None:
-    """Raise :class:`ParameterError` unless the parameters' colour axes (last axis) broadcast:
-    equal lengths, or 1.
-
-    Parameters
-    ----------
-    owner : str
-        The model, named first in the message.
-    **params : array_like or int
-        Arrays, or ints (a model's ``channels``).
-
-    Examples
-    --------
-    >>> from matfit.models._params import check_channels
-    >>> check_channels("M", a=[0.1, 0.2, 0.3], b=2.0)
-    """
+    """Raise :class:`ParameterError` unless the colour axes (last axis) of ``params`` (arrays, or
+    ints: a model's ``channels``) broadcast: equal lengths, or 1. ``owner`` is named first."""
     lens = {n: (int(v) if isinstance(v, int) else (np.shape(v)[-1] if np.ndim(v) else 1)) for n, v in params.items()}
     c = {n: k for n, k in lens.items() if k != 1}
     if len(set(c.values())) > 1:
@@ -96,49 +49,14 @@ def check_channels(owner, **params) -> None:
 
 def check_complex_index(owner, eta, k) -> None:
     """Check a conductor's complex index ``eta + i k``: ``eta > 0``, ``k >= 0`` and colour
-    channels that broadcast.
-
-    Parameters
-    ----------
-    owner : str
-        The model, named first in the message.
-    eta, k : array_like
-        Real and imaginary parts, shape ``(..., C)`` or scalars.
-
-    Raises
-    ------
-    ParameterError
-        A value out of range or channel counts that do not match.
-
-    Examples
-    --------
-    >>> from matfit.models._params import check_complex_index
-    >>> check_complex_index("M", [0.2, 0.9, 1.1], [3.9, 2.4, 2.2])
-    """
+    channels that broadcast (else :class:`ParameterError`)."""
     check_range(owner, "eta", eta, 0.0, lo_open=True)
     check_range(owner, "k", k, 0.0)
     check_channels(owner, eta=eta, k=k)
 
 
 def check_choice(owner, name, value, choices) -> None:
-    """Raise :class:`ParameterError` unless ``value`` is one of the strings ``choices``.
-
-    Parameters
-    ----------
-    owner : str
-        The model, named first in the message.
-    name : str
-        The option.
-    value : object
-        Its value.
-    choices : sequence of str
-        The accepted values.
-
-    Examples
-    --------
-    >>> from matfit.models._params import check_choice
-    >>> check_choice("M", "masking", "separable", ("separable", "height_correlated"))
-    """
+    """Raise :class:`ParameterError` unless option ``name``'s ``value`` is one of the strings ``choices``."""
     if not isinstance(value, str) or value not in choices:
         raise ParameterError(f"{owner}: {name} must be one of {list(choices)}, got {value!r}")
 
@@ -161,28 +79,9 @@ def _concrete(v):
 
 
 def check_directions(owner, **dirs) -> None:
-    """Check direction arguments: arrays with a last axis of length 3 and broadcastable batch
-    shapes; on concrete values of the outermost model call also a real dtype, finite entries
-    and unit length (``|norm - 1| <= UNIT_TOL``).
-
-    Parameters
-    ----------
-    owner : str
-        The model method, named first in the message.
-    **dirs : array_like, shape (..., 3)
-        The directions, by argument name.
-
-    Raises
-    ------
-    ParameterError
-        A direction that fails a check.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit.models._params import check_directions
-    >>> check_directions("M.eval", wo=np.array([0.0, 0.0, 1.0]), wi=np.array([[0.6, 0.0, 0.8]]))
-    """
+    """Check directions (by argument name): arrays ``(..., 3)`` with broadcastable batch shapes;
+    on concrete values of the outermost model call also a real dtype, finite entries and unit
+    length (``|norm - 1| <= UNIT_TOL``). Raises :class:`ParameterError` naming ``owner``."""
     for name, v in dirs.items():
         if not hasattr(v, "shape"):
             raise ParameterError(f"{owner}: {name} must be an array (numpy or JAX) of shape (..., 3), "
@@ -216,29 +115,9 @@ def check_directions(owner, **dirs) -> None:
 
 
 def check_u(owner, u, n) -> None:
-    """Check a sampler's random numbers: an array ``(..., >= n)`` of reals; on concrete values
-    of the outermost model call also that they lie in [0, 1].
-
-    Parameters
-    ----------
-    owner : str
-        The model method, named first in the message.
-    u : array_like, shape (..., m)
-        The uniform numbers, ``m >= n``.
-    n : int
-        How many the sampler reads per direction.
-
-    Raises
-    ------
-    ParameterError
-        ``u`` that fails a check.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit.models._params import check_u
-    >>> check_u("M.sample", np.array([0.5, 0.25, 0.75]), 3)
-    """
+    """Check a sampler's random numbers: an array ``(..., m)`` of reals, ``m >= n`` (the count it
+    reads); on concrete values of the outermost model call also that they lie in [0, 1].
+    Raises :class:`ParameterError` naming ``owner``."""
     if not hasattr(u, "shape"):
         raise ParameterError(f"{owner}: u must be an array (numpy or JAX) of shape (..., {n}), found {type(u).__name__}")
     shape = np.shape(u)

@@ -1,11 +1,4 @@
-r"""Blend: linear interpolation of two BSDFs.
-
-.. math:: f = (1 - w)\,f_a + w\,f_b,\qquad p = (1 - w)\,p_a + w\,p_b
-
-Sampling picks ``b`` with probability ``w`` (reusing the rescaled ``u[..., 0]`` for the chosen
-model's own lobe choice); the pdf is the exact mixture of the non-delta parts, and a delta lobe
-of either model keeps its discrete probability scaled by its selection probability.
-"""
+"""Blend: linear interpolation of two BSDFs."""
 
 from __future__ import annotations
 
@@ -21,7 +14,14 @@ __all__ = ["Blend"]
 
 
 class Blend(AbstractBSDF):
-    """``(1 - weight) a + weight b``.
+    r"""Linear interpolation of two models, ``(1 - weight) a + weight b``:
+
+    .. math:: f = (1 - w)\,f_a + w\,f_b,\qquad p = (1 - w)\,p_a + w\,p_b
+
+    Sampling picks ``b`` with probability ``w`` (reusing the rescaled ``u[..., 0]`` for the
+    chosen model's own lobe choice); the pdf is the exact mixture of the non-delta parts, and a
+    delta lobe of either model keeps its discrete probability scaled by its selection
+    probability.
 
     Parameters
     ----------
@@ -89,23 +89,7 @@ class Blend(AbstractBSDF):
         return self.mix(self.a.eval_pairs(pairs), self.b.eval_pairs(pairs))
 
     def mix(self, fa, fb):
-        """The blend of values of the two parts: ``(1 - weight) fa + weight fb``.
-
-        Parameters
-        ----------
-        fa, fb : array_like, shape (..., C)
-            Values (``eval``) of ``a`` and ``b``.
-
-        Returns
-        -------
-        jax.Array, shape (..., C)
-
-        Examples
-        --------
-        >>> from matfit.models import Blend, Lambert
-        >>> float(Blend(Lambert(0.5), Lambert(0.1), 0.25).mix(1.0, 3.0)[0])
-        1.5
-        """
+        """The blend ``(1 - weight) fa + weight fb`` of values ``(..., C)`` of ``a`` and ``b``."""
         w = self.weight[..., None]
         return (1 - w) * fa + w * fb
 

@@ -1,33 +1,4 @@
-r"""Diffuse plus specular: a Lambertian albedo and a microfacet lobe with Schlick's Fresnel.
-
-The model of spatially varying captures (an albedo, a specular colour :math:`F_0` and a width
-per texel), and of the article's Cook-Torrance section with a diffuse term added:
-
-.. math::
-    f(\omega_o, \omega_i) = \frac{\rho}{\pi}
-        + \frac{D(\omega_h)\,F_s(\omega_o\cdot\omega_h)\,G_2(\omega_o, \omega_i, \omega_h)}
-               {4\cos\theta_o\cos\theta_i},\qquad
-    F_s(c) = F_0 + (1 - F_0)(1 - c)^5
-
-for :math:`\cos\theta_o, \cos\theta_i > 0` (``COS_EPS``), else 0. The two terms are added, not
-coupled: the diffuse part does not lose what the lobe reflects, so the hemispherical
-reflectance is :math:`\rho` plus the lobe's, and can exceed 1: Schlick's grazing term is there
-even at :math:`F_0 = 0` (at :math:`\cos\theta_o = 0.4`, :math:`\alpha = 0.1` it is 1.013 for
-:math:`\rho = F_0 = 0.5`). It is the phenomenological texel model of SVBRDF
-capture, not a layered material (see :class:`~matfit.models.Plastic` for a diffuse base under a
-Fresnel-weighted coat).
-
-Sampling: the cosine-weighted hemisphere with probability
-:math:`p_d = \bar\rho / (\bar\rho + \bar F_0)` (channel means; 1/2 when both are 0), else the
-lobe's visible normals (or D cos); the pdf is the exact mixture.
-
-References
-----------
-- R. L. Cook, K. E. Torrance, "A Reflectance Model for Computer Graphics", ToG 1(1), 1982.
-- C. Schlick, "An Inexpensive BRDF Model for Physically-based Rendering", CGF 13(3), 1994.
-- M. Aittala, T. Weyrich, J. Lehtinen, "Two-Shot SVBRDF Capture for Stationary Materials",
-  ToG 34(4), 2015 (the diffuse + specular texel model of captures).
-"""
+"""Diffuse plus specular: a Lambertian albedo and a microfacet lobe with Schlick's Fresnel."""
 
 from __future__ import annotations
 
@@ -45,7 +16,26 @@ __all__ = ["DiffuseSpecular"]
 
 
 class DiffuseSpecular(AbstractMicrofacetBSDF):
-    r"""Lambertian albedo plus a Schlick-Fresnel microfacet lobe (the texel model of captures).
+    r"""Lambertian albedo plus a Schlick-Fresnel microfacet lobe: the texel model of spatially
+    varying captures (an albedo, a specular colour :math:`F_0` and a width per texel), and the
+    article's Cook-Torrance section with a diffuse term added:
+
+    .. math::
+        f(\omega_o, \omega_i) = \frac{\rho}{\pi}
+            + \frac{D(\omega_h)\,F_s(\omega_o\cdot\omega_h)\,G_2(\omega_o, \omega_i, \omega_h)}
+                   {4\cos\theta_o\cos\theta_i},\qquad
+        F_s(c) = F_0 + (1 - F_0)(1 - c)^5
+
+    for :math:`\cos\theta_o, \cos\theta_i > 0` (``COS_EPS``), else 0. The terms are added, not
+    coupled: the diffuse part does not lose what the lobe reflects, so the hemispherical
+    reflectance is :math:`\rho` plus the lobe's, and can exceed 1: Schlick's grazing term is
+    there even at :math:`F_0 = 0` (at :math:`\cos\theta_o = 0.4`, :math:`\alpha = 0.1` it is
+    1.013 for :math:`\rho = F_0 = 0.5`). A phenomenological texel model, not a layered material
+    (see :class:`~matfit.models.Plastic` for a diffuse base under a Fresnel-weighted coat).
+
+    Sampling: the cosine-weighted hemisphere with probability
+    :math:`p_d = \bar\rho / (\bar\rho + \bar F_0)` (channel means; 1/2 when both are 0), else
+    the lobe's visible normals (or D cos); the pdf is the exact mixture.
 
     Parameters
     ----------
@@ -66,6 +56,13 @@ class DiffuseSpecular(AbstractMicrofacetBSDF):
     sampling : {"visible", "dcos"}, default "visible"; static, not differentiable
         Normals sampled from the normals visible from ``wo``, or from D cos; "visible" becomes
         "dcos" for Blinn-Phong, which has no visible-normal sampler.
+
+    References
+    ----------
+    - R. L. Cook, K. E. Torrance, "A Reflectance Model for Computer Graphics", ToG 1(1), 1982.
+    - C. Schlick, "An Inexpensive BRDF Model for Physically-based Rendering", CGF 13(3), 1994.
+    - M. Aittala, T. Weyrich, J. Lehtinen, "Two-Shot SVBRDF Capture for Stationary Materials",
+      ToG 34(4), 2015 (the diffuse + specular texel model of captures).
 
     Examples
     --------

@@ -1,42 +1,6 @@
-r"""glTF 2.0 metallic-roughness material: the BRDF of the glTF specification (Appendix B) with
-the KHR_materials_ior, KHR_materials_specular, KHR_materials_clearcoat and
-KHR_materials_iridescence extensions.
-
-This is the BRDF a glTF viewer renders, written as a matfit model so that matfit can fit it to
-any of its own models (:mod:`matfit.export`) and measure how close the glTF material comes. With
-:math:`S_\alpha = D\,G_2/(4|\cos\theta_o\cos\theta_i|)` the GGX specular lobe
-(:math:`\alpha = \text{roughness}^2`), :math:`c` the base colour, :math:`h` the half vector and
-:math:`s(f_0, f_{90}) = f_0 + (f_{90} - f_0)(1 - |\omega_o\cdot h|)^5` (Schlick):
-
-.. math::
-    f_{diel} &= (1 - \max_c F_d)\,\frac{c}{\pi} + F_d\,S_\alpha,\qquad
-      F_d = s\big(\min(f_0(\eta)\,c_s, 1)\,w_s,\ w_s\big),\quad f_0(\eta) = \left(\frac{\eta-1}{\eta+1}\right)^2\\
-    f_{metal} &= s(c, 1)\,S_\alpha\\
-    f_{base} &= (1 - m)\,f_{diel} + m\,f_{metal}\\
-    f &= (1 - w_c F_c)\,f_{base} + w_c F_c\,S_{\alpha_c},\qquad F_c = 0.04 + 0.96\,(1 - |\cos\theta_o|)^5
-
-With iridescence (factor :math:`w_i`, a film of index :math:`\eta_i` and thickness :math:`d_i`),
-the dielectric's Fresnel becomes :math:`(1 - w_i) F_d + w_i F_{film}(|\omega_o\cdot h|)`, the
-thin film's reflectance on a base of index :math:`\eta` (:func:`~matfit.fresnel.fresnel_thin_film`:
-the Airy sum integrated per wavelength; the extension's reference shader integrates the same
-Airy sum analytically, after Belcour & Barla 2017). The metal part keeps Schlick's Fresnel (the
-extension's film over a metal is not modelled).
-
-(:math:`m` metallic, :math:`w_s, c_s` the specular factor and colour, :math:`w_c` the clear coat
-factor, :math:`\max_c` the largest colour channel; the coat's Fresnel reads the viewing angle to
-the coat's normal, as the clear coat extension specifies). :math:`S_\alpha` uses the
-height-correlated Smith masking of the specification's visibility term. Reflection only: zero when either direction is below the horizon.
-
-Sampling: a mixture of the cosine-weighted hemisphere, the specular lobe's visible normals and
-the coat lobe's, picked with probabilities proportional to ``(1 - m) / 2``, ``(1 + m) / 2`` and
-``w_c / 2``; the pdf is the exact mixture.
-
-References
-----------
-- The Khronos Group, "glTF 2.0 Specification", Appendix B: BRDF Implementation, 2021.
-- The Khronos Group, KHR_materials_ior, KHR_materials_specular, KHR_materials_clearcoat,
-  KHR_materials_iridescence extension specifications.
-"""
+"""glTF 2.0 metallic-roughness material: the BRDF of the glTF specification (Appendix B) with the
+KHR_materials_ior, KHR_materials_specular, KHR_materials_clearcoat and KHR_materials_iridescence
+extensions."""
 
 from __future__ import annotations
 
@@ -57,7 +21,38 @@ __all__ = ["GltfPBR"]
 
 
 class GltfPBR(AbstractBSDF):
-    r"""The glTF metallic-roughness BRDF (with the ior, specular and clear coat extensions).
+    r"""The glTF metallic-roughness BRDF (with the ior, specular, clear coat and iridescence extensions).
+
+    The BRDF a glTF viewer renders, as a matfit model: matfit can fit it to any of its own
+    models (:mod:`matfit.export`) and measure how close the glTF material comes. With
+    :math:`S_\alpha = D\,G_2/(4|\cos\theta_o\cos\theta_i|)` the GGX specular lobe
+    (:math:`\alpha = \text{roughness}^2`, the height-correlated Smith masking of the
+    specification's visibility term), :math:`c` the base colour, :math:`h` the half vector and
+    :math:`s(f_0, f_{90}) = f_0 + (f_{90} - f_0)(1 - |\omega_o\cdot h|)^5` (Schlick):
+
+    .. math::
+        f_{diel} &= (1 - \max_c F_d)\,\frac{c}{\pi} + F_d\,S_\alpha,\qquad
+          F_d = s\big(\min(f_0(\eta)\,c_s, 1)\,w_s,\ w_s\big),\quad
+          f_0(\eta) = \left(\frac{\eta-1}{\eta+1}\right)^2\\
+        f_{metal} &= s(c, 1)\,S_\alpha\\
+        f_{base} &= (1 - m)\,f_{diel} + m\,f_{metal}\\
+        f &= (1 - w_c F_c)\,f_{base} + w_c F_c\,S_{\alpha_c},\qquad
+          F_c = 0.04 + 0.96\,(1 - |\cos\theta_o|)^5
+
+    (:math:`m` metallic, :math:`w_s, c_s` the specular factor and colour, :math:`w_c` the clear
+    coat factor, :math:`\max_c` the largest colour channel; the coat's Fresnel reads the viewing
+    angle to the coat's normal, as the clear coat extension specifies). Reflection only: zero
+    when either direction is below the horizon. With iridescence (factor :math:`w_i`, a film of
+    index :math:`\eta_i` and thickness :math:`d_i`) the dielectric's Fresnel becomes
+    :math:`(1 - w_i) F_d + w_i F_{film}(|\omega_o\cdot h|)`, the film's reflectance on a base of
+    index :math:`\eta` (:func:`~matfit.fresnel.fresnel_thin_film`: the Airy sum integrated per
+    wavelength; the extension's reference shader integrates the same sum analytically, after
+    Belcour & Barla 2017). The metal part keeps Schlick's Fresnel (the extension's film over a
+    metal is not modelled).
+
+    Sampling: a mixture of the cosine-weighted hemisphere, the specular lobe's visible normals
+    and the coat lobe's, picked with probabilities proportional to ``(1 - m) / 2``,
+    ``(1 + m) / 2`` and ``w_c / 2``; the pdf is the exact mixture.
 
     Parameters
     ----------
@@ -86,6 +81,12 @@ class GltfPBR(AbstractBSDF):
     masking : {"height_correlated", "separable"}, default "height_correlated"; static, not differentiable
         Smith form of both lobes; the default is the specification's visibility term
         ``V_GGX = 1 / (2 (|n.l| sqrt(a^2 + (1 - a^2)(n.v)^2) + |n.v| sqrt(a^2 + (1 - a^2)(n.l)^2)))``.
+
+    References
+    ----------
+    - The Khronos Group, "glTF 2.0 Specification", Appendix B: BRDF Implementation, 2021.
+    - The Khronos Group, KHR_materials_ior, KHR_materials_specular, KHR_materials_clearcoat,
+      KHR_materials_iridescence extension specifications.
 
     Examples
     --------

@@ -1,16 +1,4 @@
-r"""Lambertian diffuse reflection.
-
-.. math:: f(\omega_o, \omega_i) = \frac{\rho}{\pi}\quad (\cos\theta_o > 0,\ \cos\theta_i > 0)
-
-Sampling is cosine-weighted (Malley's method, concentric disk map), pdf = cos(theta_i)/pi, so the
-weight is exactly ``albedo``. The model is one-sided: zero when either direction is at or below
-the horizon (|cos| <= ``COS_EPS``).
-
-References
-----------
-- J. H. Lambert, *Photometria*, 1760.
-- P. Shirley, K. Chiu, "A Low Distortion Map Between Disk and Square", JGT 2(3), 1997.
-"""
+"""Lambertian diffuse reflection, and the density of cosine-weighted sampling."""
 
 from __future__ import annotations
 
@@ -31,32 +19,35 @@ def cosine_pdf(wo, wi):
 
     Parameters
     ----------
-    wo, wi : array_like, shape (..., 3)
+    wo, wi : array_like (..., 3)
         Unit directions.
 
     Returns
     -------
     jax.Array, shape (...)
-
-    Examples
-    --------
-    >>> import jax.numpy as jnp
-    >>> from matfit.models.lambert import cosine_pdf
-    >>> up = jnp.array([0.0, 0.0, 1.0])
-    >>> round(float(cosine_pdf(up, up) * jnp.pi), 6), float(cosine_pdf(up, -up))
-    (1.0, 0.0)
     """
     return jnp.where(valid_reflection(wo, wi), wi[..., 2] / jnp.pi, 0)
 
 
 class Lambert(AbstractBSDF):
-    r"""Lambertian diffuse BRDF ``albedo / pi``.
+    r"""Lambertian diffuse BRDF ``albedo / pi``:
+
+    .. math:: f(\omega_o, \omega_i) = \frac{\rho}{\pi}\quad (\cos\theta_o > 0,\ \cos\theta_i > 0)
+
+    One-sided: zero when either direction is at or below the horizon (|cos| <= ``COS_EPS``).
+    Sampling is cosine-weighted (Malley's method, concentric disk map), pdf =
+    cos(theta_i)/pi, so the weight is exactly ``albedo``.
 
     Parameters
     ----------
     albedo : array_like, scalar or (..., C); [0, 1]; differentiable
         Hemispherical reflectance :math:`\rho` per colour channel (stored as the field
         ``reflectance``: ``albedo(wo)`` is the directional-albedo method of every model).
+
+    References
+    ----------
+    - J. H. Lambert, *Photometria*, 1760.
+    - P. Shirley, K. Chiu, "A Low Distortion Map Between Disk and Square", JGT 2(3), 1997.
 
     Examples
     --------

@@ -1,28 +1,4 @@
-r"""Layered: a dielectric coat over any base, after Weidlich & Wilkie (2007).
-
-.. math::
-    f(\omega_o, \omega_i) = f_{coat}(\omega_o, \omega_i)
-      + \frac{T(\mu_o)\,T(\mu_i)}{\eta^2}\, f_{base}(\omega_o', \omega_i')\,
-        e^{-\sigma_a d\,(1/\mu_o' + 1/\mu_i')}
-
-:math:`\omega' = -\mathrm{refract}(\omega)` are the directions refracted through the coat's mean
-normal (pointing up inside the layer), :math:`T` the coat's directional energy transmittance
-(Fresnel ``1 - F`` in and out when smooth), :math:`\eta^2` the radiance compression of the
-refracted solid angle, and the exponential the Beer-Lambert absorption along both refracted
-paths, per channel. Multiple reflections between coat and base are neglected (as in
-Weidlich-Wilkie); :class:`Plastic` sums them for a Lambertian base, and
-:class:`StochasticLayered` simulates them exactly. The model is reciprocal when the base is.
-Layers stack: the base may itself be a :class:`Layered`.
-
-Sampling: the coat lobe with probability ``R(mu_o) = 1 - T(mu_o)``, else the base's own sampler
-at ``wo'`` with the result refracted out; the pdf is the exact mixture, the base part carrying
-the Jacobian :math:`\mu_i/(\eta^2\mu_i')`. A smooth coat's delta lobe is sampled with its
-discrete probability as pdf.
-
-References
-----------
-- A. Weidlich, A. Wilkie, "Arbitrarily Layered Micro-Facet Surfaces", GRAPHITE 2007.
-"""
+"""Layered: a dielectric coat over any base, after Weidlich & Wilkie (2007); CoatedConductor."""
 
 from __future__ import annotations
 
@@ -43,7 +19,26 @@ __all__ = ["Layered", "CoatedConductor"]
 
 
 class Layered(AbstractCoatedBSDF):
-    """Any dielectric coat over any base model (stackable).
+    r"""Any dielectric coat over any base model (stackable), after Weidlich & Wilkie (2007):
+
+    .. math::
+        f(\omega_o, \omega_i) = f_{coat}(\omega_o, \omega_i)
+          + \frac{T(\mu_o)\,T(\mu_i)}{\eta^2}\, f_{base}(\omega_o', \omega_i')\,
+            e^{-\sigma_a d\,(1/\mu_o' + 1/\mu_i')}
+
+    :math:`\omega' = -\mathrm{refract}(\omega)` are the directions refracted through the coat's
+    mean normal (pointing up inside the layer), :math:`T` the coat's directional energy
+    transmittance (Fresnel ``1 - F`` in and out when smooth), :math:`\eta^2` the radiance
+    compression of the refracted solid angle, and the exponential the Beer-Lambert absorption
+    along both refracted paths, per channel. Multiple reflections between coat and base are
+    neglected (as in Weidlich-Wilkie): :class:`Plastic` sums them for a Lambertian base,
+    :class:`StochasticLayered` simulates them exactly. Reciprocal when the base is. Layers
+    stack: the base may itself be a :class:`Layered`.
+
+    Sampling: the coat lobe with probability ``R(mu_o) = 1 - T(mu_o)``, else the base's own
+    sampler at ``wo'`` with the result refracted out; the pdf is the exact mixture, the base part
+    carrying the Jacobian :math:`\mu_i/(\eta^2\mu_i')`. A smooth coat's delta lobe is sampled with
+    its discrete probability as pdf.
 
     Parameters
     ----------
@@ -56,6 +51,10 @@ class Layered(AbstractCoatedBSDF):
         Layer thickness d, in the units of ``1 / sigma_a``.
     sigma_a : array_like, scalar or (..., C), default 0.0; >= 0; differentiable
         Absorption coefficient of the layer per colour channel.
+
+    References
+    ----------
+    - A. Weidlich, A. Wilkie, "Arbitrarily Layered Micro-Facet Surfaces", GRAPHITE 2007.
 
     Examples
     --------

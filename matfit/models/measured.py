@@ -1,41 +1,10 @@
-r"""Measured BRDF tables as models: a MERL ``.binary`` table and an RGL ``.bsdf`` file, each with
+"""Measured BRDF tables as models: a MERL ``.binary`` table and an RGL ``.bsdf`` file, each with
 an interpolated ``eval``, a tabulated importance sampler and its ``pdf``, in pure JAX.
 
-:class:`MeasuredMERL`
-    ``eval``: trilinear interpolation between the cell centres of MERL's
-    (theta_h, theta_d, phi_d) grid, linear in ``sqrt(theta_h)`` (the grid's own spacing), periodic
-    in phi_d (period pi, MERL's reciprocity fold); invalid cells (below the horizon) drop out
-    of the interpolation weights. Reciprocal by construction.
-    ``sample``: for ``K`` polar angles of ``wo`` a piecewise-constant distribution of the half
-    vector over ``n_theta_h x n_phi_h`` cells (edges ``theta_h = (i / n)^2 pi/2``, uniform in
-    phi relative to ``wo``'s azimuth) with cell probabilities proportional to the integral of
-    ``f cos(theta_i)`` over the cell, uniform in solid angle inside a cell; the slices of the two
-    polar angles around ``wo``'s are mixed linearly, and a fraction ``diffuse_fraction`` of the
-    samples is cosine-weighted (defensive sampling: the density is positive wherever ``f`` can
-    be). ``pdf`` is that mixture's density.
-
-:class:`MeasuredRGL`
-    ``eval``: the RGL scheme (Dupuy & Jakob 2018; powitacq, Mitsuba 3's ``measured``) with the
-    file's incidence at ``wi``: half vector to unit coordinates, inverse VNDF warp to the sample
-    space, bilinear ``rgb``/``spectra`` table (linear over the incidence angles), times
-    ``ndf / (4 sigma)``; as :meth:`matfit.io.RglBRDF.eval`.
-    ``sample``: the file's own warps with ``wo`` as the warp's incidence: the ``luminance``
-    warp, then the VNDF warp, then the mirror of ``wo`` about the half vector (as Mitsuba's
-    plugin samples); ``pdf`` is the product of the two warps' densities divided by the Jacobian
-    of the map to solid angle.
-
 The tables are constants: every method reads them through ``jax.lax.stop_gradient`` (the way
-equinox marks an array as not trainable), so gradients with respect to them are zero. They are
-array leaves of the module, so a jitted function taking the model compiles once per table shape
-and never embeds the tables as constants.
-
-References
-----------
-- W. Matusik, H. Pfister, M. Brand, L. McMillan, "A Data-Driven Reflectance Model", ACM ToG
-  22(3), 2003.
-- J. Dupuy, W. Jakob, "An Adaptive Parameterization for Efficient Material Acquisition and
-  Rendering", ACM ToG 37(6), 2018.
-- S. Rusinkiewicz, "A New Change of Variables for Efficient BRDF Representation", EGWR 1998.
+equinox marks an array as not trainable), so their gradients are zero. They are array leaves of
+the module, so a jitted function taking the model compiles once per table shape and never embeds
+the tables as constants.
 """
 
 from __future__ import annotations
@@ -295,10 +264,15 @@ def _phi2u(p):
 class MeasuredRGL(AbstractBSDF):
     r"""An RGL material-database measurement (``.bsdf`` tensor file) as a model.
 
-    ``eval(wo, wi)`` is :meth:`matfit.io.RglBRDF.eval` (``wi``, the light, in the file's incidence
-    role) in JAX; ``sample(wo, u)`` uses the file's ``luminance`` and VNDF warps with ``wo`` as the
-    warp's incidence (by Helmholtz reciprocity, the measured lobe seen from ``wo``), and ``pdf`` is
-    their density in solid angle:
+    ``eval(wo, wi)`` is :meth:`matfit.io.RglBRDF.eval` in JAX, with ``wi`` (the light) in the
+    file's incidence role: the RGL scheme (Dupuy & Jakob 2018; powitacq, Mitsuba 3's
+    ``measured``) maps the half vector to unit coordinates, inverts the VNDF warp to the sample
+    space, reads the bilinear ``rgb``/``spectra`` table (linear over the incidence angles) and
+    multiplies by ``ndf / (4 sigma)``. ``sample(wo, u)`` uses the file's own warps with ``wo`` as
+    the warp's incidence (by Helmholtz reciprocity, the measured lobe seen from ``wo``): the
+    ``luminance`` warp, the VNDF warp, then the mirror of ``wo`` about the half vector (as
+    Mitsuba's plugin samples). ``pdf`` is the two warps' densities over the Jacobian of the map
+    to solid angle:
 
     .. math:: p(\omega_i) = \frac{p_\mathrm{vndf}(u_m)\,p_\mathrm{lum}(s)}
               {\max(2\pi^2 u_{m,1} \sin\theta_m, 10^{-6})\ 4\,(\omega_o\cdot m)}
@@ -327,6 +301,11 @@ class MeasuredRGL(AbstractBSDF):
     ------
     ParameterError
         ``brdf`` is not an :class:`~matfit.io.RglBRDF`.
+
+    References
+    ----------
+    - J. Dupuy, W. Jakob, "An Adaptive Parameterization for Efficient Material Acquisition and
+      Rendering", ACM ToG 37(6), 2018.
 
     Examples
     --------
@@ -367,32 +346,9 @@ class MeasuredRGL(AbstractBSDF):
 
     @classmethod
     def from_file(cls, path, dtype=None) -> "MeasuredRGL":
-        """Read an RGL ``.bsdf`` file into a model.
-
-        Parameters
-        ----------
-        path : str, PathLike or bytes
-            The file, or its contents.
-        dtype : {None, "float32", "float64"}, default None
-            As for the constructor.
-
-        Returns
-        -------
-        MeasuredRGL
-
-        Raises
-        ------
-        DataFormatError
-            A missing or malformed file (:func:`matfit.io.read_rgl`), naming the file and the field.
-
-        Examples
-        --------
-        >>> from matfit.models import MeasuredRGL
-        >>> MeasuredRGL.from_file(b"tensor_file")
-        Traceback (most recent call last):
-        ...
-        matfit.errors.DataFormatError: <bytes>: field 'header': expected at least 18 bytes (magic, version, field count), found 11 bytes (truncated)
-        """
+        """Read an RGL ``.bsdf`` file (a path or its bytes) into a model; ``dtype`` as for the
+        constructor. A missing or malformed file raises :class:`~matfit.errors.DataFormatError`
+        naming the file and the field."""
         _no_such_file(path)
         return cls(read_rgl(path), dtype=dtype)
 
@@ -422,27 +378,8 @@ class MeasuredRGL(AbstractBSDF):
         return jnp.stack([_theta2u(theta_m), uy - jnp.floor(uy)], 1)
 
     def eval_cos(self, wo, wi):
-        r"""``f(wo, wi) cos(theta_o)``, the quantity the RGL tables store (with ``wi`` the file's
-        incidence); 0 unless both directions are above the surface.
-
-        Parameters
-        ----------
-        wo, wi : array_like, shape (..., 3)
-            Unit directions to the viewer and to the light.
-
-        Returns
-        -------
-        jax.Array, shape (..., C)
-
-        Examples
-        --------
-        >>> import jax.numpy as jnp
-        >>> from matfit.io.rgl import read_rgl, tensor_file_bytes, uniform_fields
-        >>> from matfit.models import MeasuredRGL
-        >>> m = MeasuredRGL(read_rgl(tensor_file_bytes(uniform_fields(0.5))))
-        >>> round(float(m.eval_cos(jnp.array([0.0, 0.6, 0.8]), jnp.array([0.0, -0.6, 0.8]))[0]), 6)
-        0.125
-        """
+        """``f(wo, wi) cos(theta_o)``, what the RGL tables store (``wi`` the file's incidence); 0
+        unless both directions are above the surface."""
         check_directions("MeasuredRGL.eval_cos", wo=wo, wi=wi)
         batch, o, i = _flatten(wo, wi)
         return self._eval_cos(o, i).reshape(batch + (self.n_channels,))
@@ -573,11 +510,19 @@ _merl_value_jit = jax.jit(_merl_value)
 class MeasuredMERL(AbstractBSDF):
     r"""A MERL table (Matusik et al. 2003, ``.binary``) as a model.
 
-    ``eval`` interpolates the table trilinearly between cell centres (linear in
-    ``sqrt(theta_h)``, MERL's own spacing; periodic in phi_d with period pi); cells flagged
-    invalid leave the interpolation and the others' weights are renormalized (0 where all eight
-    neighbours are invalid). ``sample`` draws the half vector from tabulated slices (see the
-    module docstring) or, with probability ``diffuse_fraction``, a cosine-weighted ``wi``:
+    ``eval`` interpolates trilinearly between the cell centres of MERL's
+    (theta_h, theta_d, phi_d) grid, linear in ``sqrt(theta_h)`` (the grid's own spacing) and
+    periodic in phi_d (period pi, MERL's reciprocity fold); cells flagged invalid (below the
+    horizon) leave the interpolation and the others' weights are renormalized (0 where all eight
+    neighbours are invalid). Reciprocal by construction.
+
+    ``sample``: for ``n_theta_o`` polar angles of ``wo``, a piecewise-constant distribution of
+    the half vector over ``n_theta_h x n_phi_h`` cells (edges ``theta_h = (i / n)^2 pi/2``,
+    uniform in phi relative to ``wo``'s azimuth), the cells' probabilities proportional to the
+    integral of ``f cos(theta_i)`` over them, uniform in solid angle inside a cell; the slices of
+    the two polar angles around ``wo``'s are mixed linearly, and a fraction ``diffuse_fraction``
+    of the samples is cosine-weighted (defensive sampling: the density is positive wherever
+    ``f`` can be). ``pdf`` is that mixture's density:
 
     .. math:: p(\omega_i) = c\,\frac{\cos\theta_i}{\pi} + (1 - c)\,
               \frac{\sum_s w_s(\theta_o)\,P_s(\mathrm{cell}(h)) / \Omega(\mathrm{cell}(h))}
@@ -609,6 +554,12 @@ class MeasuredMERL(AbstractBSDF):
     ------
     ParameterError
         ``table`` is not a :class:`~matfit.io.MerlBRDF`, or an option out of range.
+
+    References
+    ----------
+    - W. Matusik, H. Pfister, M. Brand, L. McMillan, "A Data-Driven Reflectance Model", ACM ToG
+      22(3), 2003.
+    - S. Rusinkiewicz, "A New Change of Variables for Efficient BRDF Representation", EGWR 1998.
 
     Examples
     --------
@@ -696,33 +647,9 @@ class MeasuredMERL(AbstractBSDF):
 
     @classmethod
     def from_file(cls, path, **options) -> "MeasuredMERL":
-        """Read a MERL ``.binary`` file into a model.
-
-        Parameters
-        ----------
-        path : str, PathLike or bytes
-            The file, or its contents.
-        **options
-            The constructor's options (``n_theta_o``, ``n_theta_h``, ``n_phi_h``,
-            ``diffuse_fraction``, ``dtype``).
-
-        Returns
-        -------
-        MeasuredMERL
-
-        Raises
-        ------
-        DataFormatError
-            A missing or malformed file (:func:`matfit.io.read_merl`), naming the file and the field.
-
-        Examples
-        --------
-        >>> from matfit.models import MeasuredMERL
-        >>> MeasuredMERL.from_file(b"")
-        Traceback (most recent call last):
-        ...
-        matfit.errors.DataFormatError: <bytes>: field 'file': expected 34992012 bytes, found an empty file
-        """
+        """Read a MERL ``.binary`` file (a path or its bytes) into a model; ``options`` are the
+        constructor's. A missing or malformed file raises :class:`~matfit.errors.DataFormatError`
+        naming the file and the field."""
         _no_such_file(path)
         return cls(read_merl(path), **options)
 
@@ -821,14 +748,6 @@ def measured_model(table):
     Returns
     -------
     AbstractBSDF or None
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit import Table
-    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]])
-    >>> measured_model(Table(wo=wo, wi=wo[::-1], values=np.ones((2, 3)))) is None
-    True
     """
     prov = getattr(table, "provenance", None) or {}
     cls = {"rgl-tensor": MeasuredRGL, "merl": MeasuredMERL}.get(prov.get("format"))

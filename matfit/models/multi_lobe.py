@@ -1,48 +1,4 @@
-r"""Multi-lobe reflection: a Lambertian base plus a sum of weighted microfacet lobes.
-
-Measured materials often show more than one specular scale: a sharp highlight over a wide haze
-(brushed or sand-blasted finishes, plastics with a dust layer, satin paints), a metal whose
-roughness has two scales. :class:`MultiLobe` adds K microfacet lobes (:class:`SpecularLobe`) to a
-Lambertian base,
-
-.. math::
-    f(\omega_o, \omega_i) = \frac{\rho}{\pi} + \sum_{j=1}^{K} w_j\,F_j(\omega_o\cdot\omega_h)\,
-        \frac{D_j(\omega_h)\,G_{2,j}(\omega_o, \omega_i, \omega_h)}{4\cos\theta_o\cos\theta_i}
-
-for :math:`\cos\theta_o, \cos\theta_i > 0` (``COS_EPS``), else 0. Each lobe has its own
-distribution (GGX, Beckmann, normalized Blinn-Phong), width, masking form and Fresnel term:
-
-- ``"schlick"``: :math:`F = F_0 + (1 - F_0)(1 - c)^5`, :math:`F_0` per channel;
-- ``"dielectric"``: the exact dielectric Fresnel of a relative index :math:`\eta`;
-- ``"conductor"``: the exact conductor Fresnel of a complex index :math:`\eta + ik` per channel;
-- ``"thin_film"``: the RGB reflectance of a thin film of thickness :math:`d` (nm) and index
-  :math:`\eta_f` on a dielectric of index :math:`\eta` (:func:`~matfit.fresnel.fresnel_thin_film`:
-  the Airy sum per wavelength, integrated to linear sRGB): a highlight whose hue turns with the
-  angle (iridescence; three channels);
-
-and a per-channel weight :math:`w_j` (the ``k_s`` of Cook-Torrance fits, Löw et al. 2012, Ngan
-et al. 2005: ``w_j = k_s`` with a Schlick or dielectric Fresnel gives a coloured or white
-specular lobe; ``w_j = 1`` with a conductor Fresnel is the rough conductor). The terms are added,
-not coupled (as in :class:`~matfit.models.DiffuseSpecular`): a lobe with ``F <= 1`` reflects at
-most ``w_j`` of the light, so the directional albedo is at most :math:`\rho + \sum_j w_j` per
-channel, and at most 1 when that sum is.
-
-Sampling: one-sample MIS over the components. The cosine-weighted hemisphere is chosen with a
-probability proportional to :math:`\bar\rho` (the channel mean of the albedo), lobe ``j`` with
-one proportional to its reflectance estimate :meth:`SpecularLobe.reflectance_estimate`,
-:math:`\bar w_j (F_j(1) + (1 - F_j(1))/21)` (the cosine-weighted hemispherical average of
-Schlick's curve through the lobe's normal-incidence reflectance); equal probabilities when all
-are 0. The lobe's sample is its visible normal (or D cos) reflected about ``wo``; the pdf is the
-exact mixture.
-
-References
-----------
-- R. L. Cook, K. E. Torrance, "A Reflectance Model for Computer Graphics", ToG 1(1), 1982.
-- A. Ngan, F. Durand, W. Matusik, "Experimental Analysis of BRDF Models", EGSR 2005 (two-lobe fits).
-- J. Löw, J. Kronander, A. Ynnerman, J. Unger, "BRDF Models for Accurate and Efficient
-  Rendering of Glossy Surfaces", ToG 31(1), 2012.
-- C. Schlick, "An Inexpensive BRDF Model for Physically-based Rendering", CGF 13(3), 1994.
-"""
+"""Multi-lobe reflection: a Lambertian base plus a sum of weighted microfacet lobes."""
 
 from __future__ import annotations
 
@@ -75,11 +31,23 @@ _SCHLICK_AVERAGE = 1.0 / 21.0
 
 
 class SpecularLobe(AbstractMicrofacetBSDF):
-    r"""One weighted microfacet reflection lobe ``w F D G2 / (4 cos cos)``, a model on its own
-    and the component of :class:`MultiLobe`.
+    r"""One weighted microfacet reflection lobe, a model on its own and the component of
+    :class:`MultiLobe`:
 
-    The distribution options (``alpha``, ``alpha_y``, ``distribution``, ``masking``,
-    ``sampling``) are those of :class:`~matfit.models.RoughConductor`, whose lobe this is.
+    .. math:: f = w\,F(\omega_o\cdot\omega_h)\,\frac{D(\omega_h)\,G_2(\omega_o, \omega_i,
+              \omega_h)}{4\cos\theta_o\cos\theta_i}
+
+    for :math:`\cos\theta_o, \cos\theta_i > 0` (``COS_EPS``), else 0. The distribution options
+    (``alpha``, ``alpha_y``, ``distribution``, ``masking``, ``sampling``) are those of
+    :class:`~matfit.models.RoughConductor`, whose lobe this is. :math:`F` is Schlick's
+    :math:`F_0 + (1 - F_0)(1 - c)^5`, the exact dielectric Fresnel of :math:`\eta`, the exact
+    conductor Fresnel of :math:`\eta + ik`, or the RGB reflectance of a thin film
+    (:func:`~matfit.fresnel.fresnel_thin_film`: the Airy sum per wavelength, integrated to linear
+    sRGB), whose hue turns with the angle (iridescence; three channels).
+
+    The weight :math:`w` per channel is the ``k_s`` of Cook-Torrance fits (Löw et al. 2012, Ngan
+    et al. 2005): ``w = k_s`` with a Schlick or dielectric Fresnel gives a coloured or white
+    specular lobe; ``w = 1`` with a conductor Fresnel is the rough conductor.
 
     Parameters
     ----------
@@ -193,27 +161,7 @@ class SpecularLobe(AbstractMicrofacetBSDF):
         return self.reflection_pdf(wo, wi)
 
     def fresnel_term(self, pairs):
-        """The lobe's weighted Fresnel factor ``w F(wo . h)`` of prepared pairs
-        (:class:`~matfit.models.SoAPairs`), per channel: ``(..., C)``.
-
-        Parameters
-        ----------
-        pairs : SoAPairs
-            Reflection pairs, their Fresnel cosine ``cos_d = wo . h`` read.
-
-        Returns
-        -------
-        jax.Array
-            ``w F`` of the lobe's Fresnel kind, of shape ``(..., C)``.
-
-        Examples
-        --------
-        >>> from matfit.models import SoAPairs, SpecularLobe
-        >>> import jax.numpy as jnp
-        >>> up = jnp.array([[0.0, 0.0, 1.0]])  # normal incidence: w F0 = 0.5 * 0.04
-        >>> round(float(SpecularLobe(0.2, weight=0.5, f0=0.04).fresnel_term(SoAPairs.of(up, up))[0, 0]), 6)
-        0.02
-        """
+        """The lobe's weighted Fresnel factor ``w F(wo . h)`` of prepared pairs, ``(..., C)``."""
         if self.fresnel == "schlick":
             F = fresnel_schlick(pairs.cos_d[..., None], self.f0)
         elif self.fresnel == "dielectric":
@@ -226,20 +174,7 @@ class SpecularLobe(AbstractMicrofacetBSDF):
         return self.weight * F
 
     def normal_reflectance(self):
-        """The lobe's Fresnel term at normal incidence, ``F(1)`` per channel, without the weight:
-        ``f0`` for Schlick, else the exact dielectric or conductor Fresnel at ``cos = 1``.
-
-        Returns
-        -------
-        jax.Array
-            Shape ``(..., C)``.
-
-        Examples
-        --------
-        >>> from matfit.models import SpecularLobe
-        >>> round(float(SpecularLobe(0.2, "dielectric", eta=1.5).normal_reflectance()[0]), 6)  # (0.5/2.5)^2
-        0.04
-        """
+        """The lobe's Fresnel term at normal incidence, ``F(1)`` per channel, without the weight."""
         if self.fresnel == "schlick":
             return self.f0
         if self.fresnel == "dielectric":
@@ -249,23 +184,8 @@ class SpecularLobe(AbstractMicrofacetBSDF):
         return fresnel_conductor(jnp.ones((), self.eta.dtype), self.eta, self.k)
 
     def reflectance_estimate(self):
-        r"""A cheap estimate of the lobe's reflectance per channel, the weight of its sampling
-        probability in :class:`MultiLobe`: :math:`w\,(F(1) + (1 - F(1))/21)`, the
-        cosine-weighted hemispherical average of Schlick's curve through the normal-incidence
-        reflectance :math:`F(1)` times the weight (masking and the lobe's loss below the
-        horizon left out).
-
-        Returns
-        -------
-        jax.Array
-            The estimate per channel, ``(..., C)``: ``w`` for a lobe with ``F = 1``.
-
-        Examples
-        --------
-        >>> from matfit.models import SpecularLobe
-        >>> round(float(SpecularLobe(0.2, weight=0.7, f0=1.0).reflectance_estimate()[0]), 6)
-        0.7
-        """
+        r"""The lobe's reflectance estimate :math:`w\,(F(1) + (1 - F(1))/21)` per channel (the
+        weight of its sampling probability in :class:`MultiLobe`)."""
         r0 = self.normal_reflectance()
         return self.weight * (r0 + (1 - r0) * _SCHLICK_AVERAGE)
 
@@ -286,6 +206,29 @@ class SpecularLobe(AbstractMicrofacetBSDF):
 class MultiLobe(AbstractBSDF):
     r"""A Lambertian base plus a sum of weighted microfacet lobes (:class:`SpecularLobe`).
 
+    Measured materials often show more than one specular scale: a sharp highlight over a wide
+    haze (brushed or sand-blasted finishes, plastics with a dust layer, satin paints), a metal
+    whose roughness has two scales. With :math:`K` lobes,
+
+    .. math::
+        f(\omega_o, \omega_i) = \frac{\rho}{\pi} + \sum_{j=1}^{K} w_j\,F_j(\omega_o\cdot\omega_h)\,
+            \frac{D_j(\omega_h)\,G_{2,j}(\omega_o, \omega_i, \omega_h)}{4\cos\theta_o\cos\theta_i}
+
+    for :math:`\cos\theta_o, \cos\theta_i > 0` (``COS_EPS``), else 0, each lobe with its own
+    distribution, width, masking form, Fresnel term and weight. The terms are added, not coupled
+    (as in :class:`~matfit.models.DiffuseSpecular`): a lobe with ``F <= 1`` reflects at most
+    ``w_j`` of the light, so the directional albedo is at most :math:`\rho + \sum_j w_j` per
+    channel, and at most 1 when that sum is.
+
+    Sampling: one-sample MIS over the components. The cosine-weighted hemisphere is chosen with a
+    probability proportional to :math:`\bar\rho` (the channel mean of the albedo), lobe ``j``
+    with one proportional to the channel mean of its
+    :meth:`~SpecularLobe.reflectance_estimate`, :math:`w_j (F_j(1) + (1 - F_j(1))/21)` (the
+    cosine-weighted hemispherical average of Schlick's curve through the lobe's normal-incidence
+    reflectance; masking and the loss below the horizon left out); equal probabilities when all
+    are 0. The lobe's sample is its visible normal (or D cos) reflected about ``wo``; the pdf is
+    the exact mixture.
+
     Parameters
     ----------
     albedo : array_like, scalar or (..., C); [0, 1]; differentiable
@@ -295,18 +238,22 @@ class MultiLobe(AbstractBSDF):
         The microfacet lobes, each with its own distribution, width, Fresnel term and weight;
         channel counts equal to the albedo's, or 1.
 
+    References
+    ----------
+    - R. L. Cook, K. E. Torrance, "A Reflectance Model for Computer Graphics", ToG 1(1), 1982.
+    - A. Ngan, F. Durand, W. Matusik, "Experimental Analysis of BRDF Models", EGSR 2005 (two-lobe fits).
+    - J. Löw, J. Kronander, A. Ynnerman, J. Unger, "BRDF Models for Accurate and Efficient
+      Rendering of Glossy Surfaces", ToG 31(1), 2012.
+    - C. Schlick, "An Inexpensive BRDF Model for Physically-based Rendering", CGF 13(3), 1994.
+
     Examples
     --------
     >>> import jax.numpy as jnp
-    >>> from matfit.models import DiffuseSpecular, MultiLobe, SpecularLobe
-    >>> m = MultiLobe(jnp.array([0.5, 0.3, 0.2]), [SpecularLobe(0.05, weight=1.0, f0=0.04),
-    ...                                            SpecularLobe(0.4, weight=0.1, f0=0.04)])
-    >>> wo = jnp.array([0.0, 0.6, 0.8]); wi = jnp.array([0.0, -0.6, 0.8])
-    >>> m.eval(wo, wi).shape
+    >>> from matfit.models import MultiLobe, SpecularLobe
+    >>> sharp_over_haze = [SpecularLobe(0.05, weight=1.0, f0=0.04), SpecularLobe(0.4, weight=0.1, f0=0.04)]
+    >>> m = MultiLobe(jnp.array([0.5, 0.3, 0.2]), sharp_over_haze)
+    >>> m.eval(jnp.array([0.0, 0.6, 0.8]), jnp.array([0.0, -0.6, 0.8])).shape
     (3,)
-    >>> one = MultiLobe(jnp.array([0.5, 0.3, 0.2]), [SpecularLobe(0.2, f0=0.04)])  # DiffuseSpecular's model
-    >>> bool(jnp.allclose(one.eval(wo, wi), DiffuseSpecular(jnp.array([0.5, 0.3, 0.2]), 0.04, 0.2).eval(wo, wi)))
-    True
     """
 
     diffuse: jnp.ndarray  # the albedo rho (``albedo`` is the method)
@@ -346,22 +293,7 @@ class MultiLobe(AbstractBSDF):
         return self.eval_pairs(SoAPairs.of(wo, wi))
 
     def probabilities(self):
-        """The sampling probabilities of the components: the cosine hemisphere first, then the
-        lobes in order, proportional to the mean albedo and to the lobes'
-        :meth:`~SpecularLobe.reflectance_estimate` (equal when all are 0).
-
-        Returns
-        -------
-        tuple of jax.Array
-            ``K + 1`` probabilities of shape ``(...)`` summing to 1.
-
-        Examples
-        --------
-        >>> from matfit.models import MultiLobe, SpecularLobe
-        >>> p = MultiLobe(0.0, [SpecularLobe(0.1, f0=1.0), SpecularLobe(0.3, f0=1.0)]).probabilities()
-        >>> [round(float(x), 6) for x in p]
-        [0.0, 0.5, 0.5]
-        """
+        """The ``K + 1`` sampling probabilities ``(...)``: the cosine hemisphere first, then the lobes."""
         w = [jnp.mean(self.diffuse, axis=-1)] + [jnp.mean(lobe.reflectance_estimate(), axis=-1) for lobe in self.lobes]
         w = jnp.broadcast_arrays(*w)
         total = sum(w)

@@ -1,31 +1,4 @@
-r"""Plastic: a Lambertian base under a smooth or rough dielectric coat.
-
-.. math::
-    f(\omega_o, \omega_i) = f_{coat}(\omega_o, \omega_i) + f_d(\omega_o, \omega_i)
-
-:math:`f_{coat}` is the coat's reflection lobe (a delta when smooth, :class:`RoughDielectric`'s
-reflection when rough). With :math:`T(\mu)` the coat's directional energy transmittance
-(``1 - F`` when smooth; see :mod:`matfit.models._coat`):
-
-- ``internal_reflection=False`` (the article's Fresnel-weighted sum):
-  :math:`f_d = T(\mu_o)\,T(\mu_i)\,\rho/\pi`.
-- ``internal_reflection=True`` (light bouncing between base and coat, summed as a geometric
-  series): :math:`f_d = \dfrac{T(\mu_o)\,T(\mu_i)\,\rho}{\pi\,\eta^2\,(1 - \rho\,R_{int})}`,
-  :math:`R_{int} = 1 - \bar T/\eta^2` (the internal hemispherical Fresnel average for a smooth
-  coat). A white base under a lossless smooth coat then reflects all the energy, and
-  :math:`E(\mu) = F(\mu) + (1 - F(\mu))\,\rho\,(1 - \bar F_{int})/(1 - \rho\,\bar F_{int})`.
-
-Both forms are reciprocal. Sampling picks the coat lobe with probability
-:math:`R/(R + T\bar\rho)` (``R = 1 - T(mu_o)``) and the diffuse lobe (cosine-weighted) otherwise;
-the pdf is the exact mixture. With a smooth coat the coat lobe is a delta: its sample has the
-discrete probability as pdf, and eval/pdf cover the diffuse part only.
-
-References
-----------
-- A. Weidlich, A. Wilkie, "Arbitrarily Layered Micro-Facet Surfaces", GRAPHITE 2007.
-- W. Jakob, "Mitsuba 0.6 documentation: plastic / roughplastic", 2014 (internal scattering term).
-- Article in ``shared/seed`` (Fresnel-weighted sum of a coat lobe and a diffuse lobe).
-"""
+"""Plastic: a Lambertian base under a smooth or rough dielectric coat."""
 
 from __future__ import annotations
 
@@ -43,7 +16,26 @@ __all__ = ["Plastic"]
 
 
 class Plastic(AbstractCoatedBSDF):
-    r"""Diffuse base under a dielectric clear coat (plastic, varnished wood).
+    r"""Diffuse base under a dielectric clear coat (plastic, varnished wood):
+
+    .. math:: f(\omega_o, \omega_i) = f_{coat}(\omega_o, \omega_i) + f_d(\omega_o, \omega_i)
+
+    :math:`f_{coat}` is the coat's reflection lobe (a delta when smooth, :class:`RoughDielectric`'s
+    reflection when rough). With :math:`T(\mu)` the coat's directional energy transmittance
+    (``1 - F`` when smooth; see :mod:`matfit.models._coat`):
+
+    - ``internal_reflection=False`` (the article's Fresnel-weighted sum):
+      :math:`f_d = T(\mu_o)\,T(\mu_i)\,\rho/\pi`.
+    - ``internal_reflection=True`` (light bouncing between base and coat, summed as a geometric
+      series): :math:`f_d = \dfrac{T(\mu_o)\,T(\mu_i)\,\rho}{\pi\,\eta^2\,(1 - \rho\,R_{int})}`,
+      :math:`R_{int} = 1 - \bar T/\eta^2` (the internal hemispherical Fresnel average for a
+      smooth coat). A white base under a lossless smooth coat then reflects all the energy, and
+      :math:`E(\mu) = F(\mu) + (1 - F(\mu))\,\rho\,(1 - \bar F_{int})/(1 - \rho\,\bar F_{int})`.
+
+    Both forms are reciprocal. Sampling picks the coat lobe with probability
+    :math:`R/(R + T\bar\rho)` (``R = 1 - T(mu_o)``), else the diffuse lobe (cosine-weighted);
+    the pdf is the exact mixture. With a smooth coat the coat lobe is a delta: its sample has
+    the discrete probability as pdf, and eval/pdf cover the diffuse part only.
 
     Parameters
     ----------
@@ -59,9 +51,15 @@ class Plastic(AbstractCoatedBSDF):
     distribution : {"ggx", "beckmann", "blinn_phong"}, default "ggx"; static, not differentiable
         The coat's microfacet distribution (rough coat only).
     internal_reflection : bool, default True; static, not differentiable
-        Sum the light bouncing between base and coat (the module's second form of ``f_d``).
+        Sum the light bouncing between base and coat (a geometric series in :math:`\rho R_{int}`).
     masking : {"separable", "height_correlated"}, default "separable"; static, not differentiable
         Smith masking form of the rough coat.
+
+    References
+    ----------
+    - A. Weidlich, A. Wilkie, "Arbitrarily Layered Micro-Facet Surfaces", GRAPHITE 2007.
+    - W. Jakob, "Mitsuba 0.6 documentation: plastic / roughplastic", 2014 (internal scattering term).
+    - Article in ``shared/seed`` (Fresnel-weighted sum of a coat lobe and a diffuse lobe).
 
     Examples
     --------

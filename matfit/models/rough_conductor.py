@@ -1,21 +1,4 @@
-r"""Rough conductor: Cook-Torrance microfacet reflection with the exact conductor Fresnel.
-
-.. math::
-    f(\omega_o, \omega_i) = \frac{D(\omega_h)\,F(\omega_o\cdot\omega_h;\ \eta, k)\,
-        G_2(\omega_o, \omega_i, \omega_h)}{4\cos\theta_o\cos\theta_i},\qquad
-    \omega_h = \frac{\omega_o + \omega_i}{\lVert\omega_o + \omega_i\rVert}
-
-for :math:`\cos\theta_o, \cos\theta_i > 0` (``COS_EPS``), else 0.
-
-Sampling: visible normals of ``wo`` (GGX, Beckmann) or D cos (all), reflected about the sampled
-normal; pdf = pdf_m(h) / (4 wo.h). Samples that leave below the horizon are invalid (pdf 0).
-
-References
-----------
-- R. L. Cook, K. E. Torrance, "A Reflectance Model for Computer Graphics", ToG 1(1), 1982.
-- B. Walter et al., "Microfacet Models for Refraction through Rough Surfaces", EGSR 2007.
-- E. Heitz, "Understanding the Masking-Shadowing Function in Microfacet-Based BRDFs", JCGT 3(2), 2014.
-"""
+"""Rough conductor: Cook-Torrance microfacet reflection with the exact conductor Fresnel."""
 
 from __future__ import annotations
 
@@ -32,7 +15,16 @@ __all__ = ["RoughConductor"]
 
 
 class RoughConductor(AbstractMicrofacetBSDF):
-    """Rough metal: D F G / (4 cos cos) with the complex-index Fresnel.
+    r"""Rough metal: Cook-Torrance microfacet reflection with the complex-index Fresnel,
+
+    .. math::
+        f(\omega_o, \omega_i) = \frac{D(\omega_h)\,F(\omega_o\cdot\omega_h;\ \eta, k)\,
+            G_2(\omega_o, \omega_i, \omega_h)}{4\cos\theta_o\cos\theta_i},\qquad
+        \omega_h = \frac{\omega_o + \omega_i}{\lVert\omega_o + \omega_i\rVert}
+
+    for :math:`\cos\theta_o, \cos\theta_i > 0` (``COS_EPS``), else 0. Sampling: visible normals
+    of ``wo`` (GGX, Beckmann) or D cos (all), reflected about the sampled normal; pdf =
+    pdf_m(h) / (4 wo.h). Samples that leave below the horizon are invalid (pdf 0).
 
     Parameters
     ----------
@@ -52,6 +44,12 @@ class RoughConductor(AbstractMicrofacetBSDF):
     sampling : {"visible", "dcos"}, default "visible"; static, not differentiable
         Normals sampled from the normals visible from ``wo``, or from D cos; "visible" becomes
         "dcos" for Blinn-Phong, which has no visible-normal sampler.
+
+    References
+    ----------
+    - R. L. Cook, K. E. Torrance, "A Reflectance Model for Computer Graphics", ToG 1(1), 1982.
+    - B. Walter et al., "Microfacet Models for Refraction through Rough Surfaces", EGSR 2007.
+    - E. Heitz, "Understanding the Masking-Shadowing Function in Microfacet-Based BRDFs", JCGT 3(2), 2014.
 
     Examples
     --------

@@ -1,39 +1,4 @@
-r"""Rough dielectric: microfacet reflection and refraction (Walter et al. 2007).
-
-With :math:`\cos\theta_o = \omega_o\cdot n`, :math:`\cos\theta_i = \omega_i\cdot n`, the pair is a
-reflection when both lie on the same side. The relative index across the pair is
-:math:`\eta_p = 1` (reflection), :math:`\eta` (``wo`` outside, ``wi`` inside) or :math:`1/\eta`
-(``wo`` inside), and the generalized half vector :math:`m \propto \eta_p\omega_i + \omega_o`,
-turned to the upper side. Pairs whose microfacet is back-facing for either direction
-(:math:`(m\cdot\omega)\cos\theta \le 0`) are rejected (value 0). With
-:math:`F = F_{\text{dielectric}}(\omega_o\cdot m, \eta)`:
-
-.. math::
-    f_r = \frac{D(m)\,G_2\,F}{4|\cos\theta_i\cos\theta_o|},\qquad
-    f_t = \frac{D(m)\,G_2\,(1-F)}{\eta_p^2}
-          \left|\frac{(\omega_i\cdot m)(\omega_o\cdot m)}
-          {\cos\theta_i\cos\theta_o\,(\omega_i\cdot m + \omega_o\cdot m/\eta_p)^2}\right|
-
-:math:`f_t` is the radiance BTDF (pbrt-v4's ``TransportMode::Radiance``): it obeys
-:math:`f_t(\omega_o,\omega_i)/\eta_o^2 = f_t(\omega_i,\omega_o)/\eta_i^2`, with
-:math:`\eta_o, \eta_i` the indices of the media that hold each direction.
-
-Sampling picks a visible microfacet normal of ``wo`` (or D cos), then reflection with
-probability F and refraction with probability 1 - F; the pdf carries the Jacobian of each lobe,
-:math:`1/(4|\omega_o\cdot m|)` and :math:`|\omega_i\cdot m|/(\omega_i\cdot m + \omega_o\cdot m/\eta_p)^2`.
-
-Index-matched interface: for :math:`|\eta - 1| <` ``ETA_PASS`` (1e-5) the surface is invisible:
-no reflection, and transmission is a Dirac lobe straight through (``wi = -wo``, weight 1, pdf 1
-as a discrete probability; eval and pdf 0). Just outside that band the transmission lobe is a
-very narrow but finite peak around ``-wo``.
-
-References
-----------
-- B. Walter, S. Marschner, H. Li, K. Torrance, "Microfacet Models for Refraction through Rough
-  Surfaces", EGSR 2007.
-- M. Pharr, W. Jakob, G. Humphreys, *Physically Based Rendering*, 4th ed., Sec. 9.7.
-- E. Heitz, "Understanding the Masking-Shadowing Function", JCGT 3(2), 2014.
-"""
+"""Rough dielectric: microfacet reflection and refraction (Walter et al. 2007)."""
 
 from __future__ import annotations
 
@@ -52,9 +17,35 @@ ETA_PASS = 1e-5
 
 
 class RoughDielectric(AbstractMicrofacetBSDF):
-    """Frosted glass: rough reflection and refraction through a dielectric interface.
+    r"""Frosted glass: rough reflection and refraction through a dielectric interface
+    (one colour channel, ``C = 1``).
 
-    The model has one colour channel (``C = 1``).
+    With :math:`\cos\theta_o = \omega_o\cdot n`, :math:`\cos\theta_i = \omega_i\cdot n`, the pair is a
+    reflection when both lie on the same side. The relative index across the pair is
+    :math:`\eta_p = 1` (reflection), :math:`\eta` (``wo`` outside, ``wi`` inside) or :math:`1/\eta`
+    (``wo`` inside), and the generalized half vector :math:`m \propto \eta_p\omega_i + \omega_o`,
+    turned to the upper side. Pairs whose microfacet is back-facing for either direction
+    (:math:`(m\cdot\omega)\cos\theta \le 0`) are rejected (value 0). With
+    :math:`F = F_{\text{dielectric}}(\omega_o\cdot m, \eta)`:
+
+    .. math::
+        f_r = \frac{D(m)\,G_2\,F}{4|\cos\theta_i\cos\theta_o|},\qquad
+        f_t = \frac{D(m)\,G_2\,(1-F)}{\eta_p^2}
+              \left|\frac{(\omega_i\cdot m)(\omega_o\cdot m)}
+              {\cos\theta_i\cos\theta_o\,(\omega_i\cdot m + \omega_o\cdot m/\eta_p)^2}\right|
+
+    :math:`f_t` is the radiance BTDF (pbrt-v4's ``TransportMode::Radiance``): it obeys
+    :math:`f_t(\omega_o,\omega_i)/\eta_o^2 = f_t(\omega_i,\omega_o)/\eta_i^2`, with
+    :math:`\eta_o, \eta_i` the indices of the media that hold each direction.
+
+    Sampling picks a visible microfacet normal of ``wo`` (or D cos), then reflection with
+    probability F and refraction with probability 1 - F; the pdf carries the Jacobian of each lobe,
+    :math:`1/(4|\omega_o\cdot m|)` and :math:`|\omega_i\cdot m|/(\omega_i\cdot m + \omega_o\cdot m/\eta_p)^2`.
+
+    Index-matched interface: for :math:`|\eta - 1| <` ``ETA_PASS`` (1e-5) the surface is invisible:
+    no reflection, and transmission is a Dirac lobe straight through (``wi = -wo``, weight 1, pdf 1
+    as a discrete probability; eval and pdf 0). Just outside that band the transmission lobe is a
+    very narrow but finite peak around ``-wo``.
 
     Parameters
     ----------
@@ -73,6 +64,13 @@ class RoughDielectric(AbstractMicrofacetBSDF):
     sampling : {"visible", "dcos"}, default "visible"; static, not differentiable
         Normals sampled from the normals visible from ``wo``, or from D cos; "visible" becomes
         "dcos" for Blinn-Phong, which has no visible-normal sampler.
+
+    References
+    ----------
+    - B. Walter, S. Marschner, H. Li, K. Torrance, "Microfacet Models for Refraction through Rough
+      Surfaces", EGSR 2007.
+    - M. Pharr, W. Jakob, G. Humphreys, *Physically Based Rendering*, 4th ed., Sec. 9.7.
+    - E. Heitz, "Understanding the Masking-Shadowing Function", JCGT 3(2), 2014.
 
     Examples
     --------
@@ -100,19 +98,7 @@ class RoughDielectric(AbstractMicrofacetBSDF):
         return 1
 
     def index_matched(self):
-        """True where ``|eta - 1| < ETA_PASS``: the interface is index-matched and light passes
-        straight through (no reflection, a Dirac transmission), the eta -> 1 limit.
-
-        Returns
-        -------
-        jax.Array of bool
-
-        Examples
-        --------
-        >>> from matfit.models import RoughDielectric
-        >>> bool(RoughDielectric(0.2, 1.0).index_matched()), bool(RoughDielectric(0.2, 1.5).index_matched())
-        (True, False)
-        """
+        """True where ``|eta - 1| < ETA_PASS``: index-matched, light passes straight through."""
         return jnp.abs(self.eta - 1) < ETA_PASS
 
     def _geometry(self, wo, wi):

@@ -1,46 +1,4 @@
-r"""Sheen: the "Charlie" sheen lobe of Estevez & Kulla (2017) over any base, the base scaled so
-that no energy is created.
-
-Cloth, velvet and satin scatter light back at grazing angles: the fibres standing out of the
-surface form a distribution of normals that lies near the horizon,
-
-.. math::
-    D(h) = \frac{(2 + 1/\alpha)\,\sin^{1/\alpha}\theta_h}{2\pi},\qquad
-    V = \frac{1}{(1 + \Lambda(\mu_o) + \Lambda(\mu_i))\,4\mu_o\mu_i},
-
-with Estevez & Kulla's fitted masking :math:`\Lambda(\mu) = e^{L(\mu)}` for :math:`\mu < 1/2`,
-:math:`e^{2L(1/2) - L(1 - \mu)}` otherwise, :math:`L(x) = a/(1 + b x^c) + d x + e`, the five
-coefficients interpolated by :math:`(1 - \alpha)^2` between their fits at :math:`\alpha = 1` and
-:math:`\alpha = 0` (:data:`SHEEN_L_FITS`; the values of the KHR_materials_sheen extension). The
-material is
-
-.. math::
-    f = c\,D\,V + s\,f_{base},\qquad s = 1 - \max_k c_k\,\max(E(\mu_o), E(\mu_i))
-
-with :math:`c` the sheen colour, :math:`E(\mu) = \int D\,V\cos\theta_i\,d\omega_i` the sheen's
-directional albedo (white, tabulated over :math:`\sqrt\mu` and :math:`\alpha` by quadrature, bilinear between,
-:func:`sheen_albedo`) and :math:`s` the energy-preserving albedo scaling of the base (the
-extension's, symmetric in the two directions: the model is reciprocal when the base is). Its
-directional albedo is at most :math:`\max_k c_k E(\mu_o) + (1 - \max_k c_k E(\mu_o))\,E_{base}
-\le 1`.
-
-=================  ===========================================================================
-``base``           any reflective model without Dirac lobes
-``color``          :math:`c` per channel, [0, 1]
-``alpha``          the sheen's width :math:`\alpha` in (0, 1] (glTF's ``sheenRoughness``
-                   squared); the albedo table reads it clamped to :data:`SHEEN_ALPHA_MIN`
-=================  ===========================================================================
-
-Sampling: the sheen lobe by the cosine-weighted hemisphere with probability
-:math:`P = \bar c\,E(\mu_o)` (clamped to [0.05, 0.95]; 0 for a black sheen), the base's own
-sampler otherwise; the pdf is the exact mixture.
-
-References
-----------
-- A. C. Estevez, C. Kulla, "Production Friendly Microfacet Sheen BRDF", Sony Pictures
-  Imageworks technical report, 2017.
-- The Khronos Group, KHR_materials_sheen extension specification (the albedo scaling).
-"""
+"""Sheen: the "Charlie" sheen lobe of Estevez & Kulla (2017) over any base, and its albedo table."""
 
 from __future__ import annotations
 
@@ -114,7 +72,7 @@ def _albedo_table():
 
 
 def sheen_albedo(mu, alpha):
-    """The white sheen lobe's directional albedo :math:`E(\\mu)` (bilinear in the table).
+    """The white sheen lobe's directional albedo :math:`E(\\mu)`, bilinear in a table (:class:`Sheen`).
 
     Parameters
     ----------
@@ -145,7 +103,34 @@ def sheen_albedo(mu, alpha):
 
 
 class Sheen(AbstractBSDF):
-    r"""The Charlie sheen lobe over a base, the base scaled by :math:`s` (module docstring).
+    r"""The Charlie sheen lobe over a base, the base scaled so that no energy is created.
+
+    Cloth, velvet and satin scatter light back at grazing angles: the fibres standing out of the
+    surface form a distribution of normals that lies near the horizon,
+
+    .. math::
+        D(h) = \frac{(2 + 1/\alpha)\,\sin^{1/\alpha}\theta_h}{2\pi},\qquad
+        V = \frac{1}{(1 + \Lambda(\mu_o) + \Lambda(\mu_i))\,4\mu_o\mu_i},
+
+    with Estevez & Kulla's fitted masking :math:`\Lambda(\mu) = e^{L(\mu)}` for :math:`\mu < 1/2`,
+    :math:`e^{2L(1/2) - L(1 - \mu)}` otherwise, :math:`L(x) = a/(1 + b x^c) + d x + e`, the five
+    coefficients interpolated by :math:`(1 - \alpha)^2` between their fits at :math:`\alpha = 1`
+    and :math:`\alpha = 0` (:data:`SHEEN_L_FITS`; the values of the KHR_materials_sheen
+    extension). The material is
+
+    .. math::
+        f = c\,D\,V + s\,f_{base},\qquad s = 1 - \max_k c_k\,\max(E(\mu_o), E(\mu_i))
+
+    with :math:`c` the sheen colour, :math:`E(\mu) = \int D\,V\cos\theta_i\,d\omega_i` the
+    sheen's directional albedo (white, tabulated over :math:`\sqrt\mu` and :math:`\alpha` by
+    quadrature, bilinear between: :func:`sheen_albedo`) and :math:`s` the energy-preserving
+    albedo scaling of the base (the extension's, symmetric in the two directions: the model is
+    reciprocal when the base is). Its directional albedo is at most
+    :math:`\max_k c_k E(\mu_o) + (1 - \max_k c_k E(\mu_o))\,E_{base} \le 1`.
+
+    Sampling: the sheen lobe by the cosine-weighted hemisphere with probability
+    :math:`P = \bar c\,E(\mu_o)` (clamped to [0.05, 0.95]; 0 for a black sheen), the base's own
+    sampler otherwise; the pdf is the exact mixture.
 
     Parameters
     ----------
@@ -154,7 +139,14 @@ class Sheen(AbstractBSDF):
     color : array_like, scalar or (..., C); [0, 1]; differentiable
         The sheen colour :math:`c` per channel.
     alpha : array_like, scalar or (...), default 0.3; > 0 and <= 1; differentiable
-        The sheen's width :math:`\alpha`.
+        The sheen's width :math:`\alpha`. It is glTF's ``sheenRoughness`` squared; the albedo
+        table reads it clamped to :data:`SHEEN_ALPHA_MIN`.
+
+    References
+    ----------
+    - A. C. Estevez, C. Kulla, "Production Friendly Microfacet Sheen BRDF", Sony Pictures
+      Imageworks technical report, 2017.
+    - The Khronos Group, KHR_materials_sheen extension specification (the albedo scaling).
 
     Examples
     --------

@@ -1,14 +1,4 @@
-r"""Smooth conductor: a perfect mirror weighted by the exact conductor Fresnel (delta model).
-
-The :math:`\alpha \to 0` limit of :class:`RoughConductor`. ``eval`` and ``pdf`` are zero (a Dirac
-lobe has no density); ``sample`` returns the mirror direction
-:math:`(-\omega_{o,x}, -\omega_{o,y}, \omega_{o,z})`, weight :math:`F(\cos\theta_o;\eta,k)` and
-pdf 1 (the discrete probability of the only lobe).
-
-References
-----------
-- M. Pharr, W. Jakob, G. Humphreys, *Physically Based Rendering*, 4th ed., Sec. 9.3.
-"""
+"""Smooth conductor: a perfect mirror weighted by the exact conductor Fresnel (delta model)."""
 
 from __future__ import annotations
 
@@ -24,7 +14,10 @@ __all__ = ["SmoothConductor"]
 
 
 class SmoothConductor(AbstractDeltaBSDF):
-    """Perfect mirror with conductor Fresnel.
+    r"""Perfect mirror with conductor Fresnel: the :math:`\alpha \to 0` limit of
+    :class:`RoughConductor`. ``eval`` and ``pdf`` are zero (a Dirac lobe has no density);
+    ``sample`` returns the mirror direction :math:`(-\omega_{o,x}, -\omega_{o,y}, \omega_{o,z})`,
+    weight :math:`F(\cos\theta_o;\eta,k)` and pdf 1 (the discrete probability of the only lobe).
 
     Parameters
     ----------
@@ -32,6 +25,10 @@ class SmoothConductor(AbstractDeltaBSDF):
         Real part of the conductor's complex index relative to the outside, per channel.
     k : array_like, scalar or (..., C); >= 0; differentiable
         Imaginary part (extinction coefficient), per channel.
+
+    References
+    ----------
+    - M. Pharr, W. Jakob, G. Humphreys, *Physically Based Rendering*, 4th ed., Sec. 9.3.
 
     Examples
     --------

@@ -1,15 +1,4 @@
-r"""Smooth dielectric: specular reflection and refraction (delta model).
-
-The :math:`\alpha \to 0` limit of :class:`RoughDielectric`. With :math:`F` the exact dielectric
-Fresnel at :math:`\cos\theta_o`, ``sample`` reflects with probability F (weight 1) and refracts
-by Snell's law with probability 1 - F (weight :math:`1/\eta_p^2`, the radiance scaling); under
-total internal reflection F = 1. The returned pdf is the discrete lobe probability; ``eval`` and
-``pdf`` are zero everywhere.
-
-References
-----------
-- M. Pharr, W. Jakob, G. Humphreys, *Physically Based Rendering*, 4th ed., Sec. 9.5.
-"""
+"""Smooth dielectric: specular reflection and refraction (delta model)."""
 
 from __future__ import annotations
 
@@ -24,12 +13,21 @@ __all__ = ["SmoothDielectric"]
 
 
 class SmoothDielectric(AbstractDeltaBSDF):
-    """Clear glass interface (one colour channel, ``C = 1``).
+    r"""Clear glass interface (one colour channel, ``C = 1``): the :math:`\alpha \to 0` limit of
+    :class:`RoughDielectric`. With :math:`F` the exact dielectric Fresnel at
+    :math:`\cos\theta_o`, ``sample`` reflects with probability F (weight 1) and refracts by
+    Snell's law with probability 1 - F (weight :math:`1/\eta_p^2`, the radiance scaling); under
+    total internal reflection F = 1. The returned pdf is the discrete lobe probability; ``eval``
+    and ``pdf`` are zero everywhere.
 
     Parameters
     ----------
     eta : array_like, scalar or (...); > 0; differentiable
         Relative index inside / outside; one value per batch element, no channel axis.
+
+    References
+    ----------
+    - M. Pharr, W. Jakob, G. Humphreys, *Physically Based Rendering*, 4th ed., Sec. 9.5.
 
     Examples
     --------

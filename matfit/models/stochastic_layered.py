@@ -1,37 +1,4 @@
-r"""StochasticLayered: the accuracy reference for coated stacks, by a position-free random walk.
-
-The layer between a dielectric coat (smooth or rough, from :class:`SmoothDielectric` /
-:class:`RoughDielectric`) and a base model is a non-scattering medium of thickness :math:`d`
-with absorption :math:`\sigma_a` (per channel). Following Guo, Hašan and Zhao (2018), light
-transport in the layer is simulated as a random walk over directions only (the slab is
-laterally infinite and homogeneous, so positions do not matter):
-
-1. the coat's reflection lobe at (wo, wi) is added exactly (zero for a smooth coat's delta);
-2. a path enters through the coat by sampling it at ``wo`` (weight :math:`f|\cos|/p`),
-3. at each crossing of the layer the throughput is attenuated by
-   :math:`e^{-\sigma_a d/|\cos\theta|}`;
-4. at the base it is connected to the light: for a smooth coat deterministically through the
-   refracted light direction (:math:`(1 - F(\mu_i))\,f_{base}(\omega', \omega_i')\,\mu_i`),
-   for a rough coat by two strategies combined with multiple importance sampling (balance
-   heuristic): evaluating the coat's BTDF :math:`f_{coat}(-\omega_b, \omega_i)\mu_i` at the
-   base-sampled direction :math:`\omega_b`, and sampling the coat from the light side,
-   :math:`\omega = -\omega_l`, using :math:`f_{coat}(\omega_l, \omega_i) = \eta^2
-   f_{coat}(\omega_i, \omega_l)` (generalized reciprocity);
-5. the walk continues by sampling the base and the coat from inside, up to ``max_depth`` base
-   bounces; paths that leave through the coat end.
-
-The estimate of ``eval`` is unbiased up to the truncation at ``max_depth`` (each extra bounce is
-damped by the base albedo times the coat's internal reflectance, so the bias falls
-geometrically). Its standard error falls as :math:`1/\sqrt{n}` with ``n_samples``.
-
-There is no closed-form pdf: ``pdf`` and ``sample`` raise; :meth:`albedo` uses the walk itself
-(energy of the paths that leave the layer).
-
-References
-----------
-- Y. Guo, M. Hašan, S. Zhao, "Position-Free Monte Carlo Simulation for Arbitrary Layered BSDFs",
-  ACM ToG 37(6), 2018.
-"""
+"""StochasticLayered: the accuracy reference for coated stacks, by a position-free random walk."""
 
 from __future__ import annotations
 
@@ -53,7 +20,33 @@ __all__ = ["StochasticLayered"]
 
 
 class StochasticLayered(AbstractBSDF):
-    """Monte Carlo reference for a coat over a base (unbiased ``eval`` estimate).
+    r"""Monte Carlo reference for a coat over a base: an unbiased ``eval`` estimate.
+
+    The layer between a dielectric coat (:class:`SmoothDielectric` or :class:`RoughDielectric`)
+    and a base model is a non-scattering medium of thickness :math:`d` with absorption
+    :math:`\sigma_a` per channel. After Guo, Hašan and Zhao (2018), transport in the layer is a
+    random walk over directions only (the slab is laterally infinite and homogeneous):
+
+    1. the coat's reflection lobe at (wo, wi) is added exactly (zero for a smooth coat's delta);
+    2. a path enters through the coat by sampling it at ``wo`` (weight :math:`f|\cos|/p`);
+    3. each crossing of the layer attenuates the throughput by :math:`e^{-\sigma_a d/|\cos\theta|}`;
+    4. at the base it is connected to the light: for a smooth coat deterministically through the
+       refracted light direction (:math:`(1 - F(\mu_i))\,f_{base}(\omega', \omega_i')\,\mu_i`),
+       for a rough coat by two strategies combined by multiple importance sampling (balance
+       heuristic): the coat's BTDF :math:`f_{coat}(-\omega_b, \omega_i)\mu_i` at the
+       base-sampled direction :math:`\omega_b`, and the coat sampled from the light side,
+       :math:`\omega = -\omega_l`, with :math:`f_{coat}(\omega_l, \omega_i) = \eta^2
+       f_{coat}(\omega_i, \omega_l)` (generalized reciprocity);
+    5. the walk continues by sampling the base and the coat from inside, up to ``max_depth``
+       base bounces; paths that leave through the coat end.
+
+    The estimate is unbiased up to the truncation at ``max_depth`` (each extra bounce is damped
+    by the base albedo times the coat's internal reflectance: the bias falls geometrically); its
+    standard error falls as :math:`1/\sqrt{n}` with ``n_samples``. ``eval`` and
+    ``eval_with_error`` take an optional ``key`` (default ``PRNGKey(0)``: a deterministic
+    estimate). There is no closed-form pdf: ``pdf`` and ``sample`` raise
+    ``NotImplementedError`` (sample with :class:`Layered` or :class:`Plastic`); ``albedo`` is
+    the energy of the walks' paths that leave the layer.
 
     Parameters
     ----------
@@ -69,6 +62,11 @@ class StochasticLayered(AbstractBSDF):
         Random walks per evaluation; the standard error falls as ``1 / sqrt(n_samples)``.
     max_depth : int, default 16; >= 1; static, not differentiable
         Base bounces per walk (the truncation of the series).
+
+    References
+    ----------
+    - Y. Guo, M. Hašan, S. Zhao, "Position-Free Monte Carlo Simulation for Arbitrary Layered
+      BSDFs", ACM ToG 37(6), 2018.
 
     Examples
     --------
@@ -189,28 +187,7 @@ class StochasticLayered(AbstractBSDF):
         return c_a + jnp.where(ok_l[..., None], c_b, 0)
 
     def eval(self, wo, wi, key=None):
-        r"""Unbiased estimate of :math:`f(\omega_o, \omega_i)` from ``n_samples`` walks.
-
-        Parameters
-        ----------
-        wo, wi : array_like, shape (..., 3)
-            Unit directions (a reflection pair above the surface; 0 otherwise).
-        key : jax.random.PRNGKey, optional
-            Random key of the walks (default ``PRNGKey(0)``: a deterministic estimate).
-
-        Returns
-        -------
-        jax.Array, shape (..., C)
-
-        Examples
-        --------
-        >>> import jax.numpy as jnp
-        >>> from matfit.models import Lambert, SmoothDielectric, StochasticLayered
-        >>> ref = StochasticLayered(SmoothDielectric(1.0 + 1e-6), Lambert(0.5), n_samples=64, max_depth=2)
-        >>> up = jnp.array([0.0, 0.0, 1.0])  # an index-matched coat: the base alone
-        >>> round(float(ref.eval(up, up)[0] * jnp.pi), 3)
-        0.5
-        """
+        """Unbiased estimate of ``f`` from ``n_samples`` walks (0 unless a reflection pair above the surface)."""
         check_directions("StochasticLayered.eval", wo=wo, wi=wi)
         key = jax.random.PRNGKey(0) if key is None else key
         wo = jnp.asarray(wo)
@@ -221,29 +198,7 @@ class StochasticLayered(AbstractBSDF):
         return jnp.where(ok[..., None], fcos / mu_i[..., None], 0)
 
     def eval_with_error(self, wo, wi, key=None):
-        """The estimate of :meth:`eval` with its standard error.
-
-        Parameters
-        ----------
-        wo, wi : array_like, shape (..., 3)
-            Unit directions.
-        key : jax.random.PRNGKey, optional
-            Random key of the walks (default ``PRNGKey(0)``).
-
-        Returns
-        -------
-        estimate, stderr : jax.Array, shape (..., C)
-            The mean of the walks' contributions and its standard error.
-
-        Examples
-        --------
-        >>> import jax.numpy as jnp
-        >>> from matfit.models import Lambert, SmoothDielectric, StochasticLayered
-        >>> ref = StochasticLayered(SmoothDielectric(1.5), Lambert(0.5), n_samples=256, max_depth=4)
-        >>> f, se = ref.eval_with_error(jnp.array([0.0, 0.0, 1.0]), jnp.array([0.6, 0.0, 0.8]))
-        >>> bool(jnp.all(se < 0.1 * f))
-        True
-        """
+        """``(estimate, stderr)``: the estimate of :meth:`eval` and its standard error, ``(..., C)`` each."""
         key = jax.random.PRNGKey(0) if key is None else key
         wo = jnp.asarray(wo)
         wi = jnp.asarray(wi)
@@ -252,97 +207,16 @@ class StochasticLayered(AbstractBSDF):
         return jnp.mean(c, axis=0) / mu_i, jnp.std(c, axis=0) / jnp.sqrt(self.n_samples) / mu_i
 
     def albedo(self, wo, method="mc", n=None, key=None):
-        """Directional albedo by the walk: the energy of the paths that leave the layer.
-
-        Parameters
-        ----------
-        wo : array_like, shape (..., 3)
-            Outgoing directions.
-        method : str, optional
-            Not read: the walk is the only method (accepted for the interface of
-            :meth:`AbstractBSDF.albedo <matfit.models.AbstractBSDF.albedo>`).
-        n : int, optional
-            Not read: the walk count is ``n_samples``.
-        key : jax.random.PRNGKey, optional
-            Random key of the walks (default ``PRNGKey(0)``).
-
-        Returns
-        -------
-        jax.Array, shape (..., C)
-
-        Examples
-        --------
-        >>> import jax.numpy as jnp
-        >>> from matfit.models import Lambert, SmoothDielectric, StochasticLayered
-        >>> ref = StochasticLayered(SmoothDielectric(1.5), Lambert(0.0), n_samples=4096, max_depth=1)
-        >>> e = ref.albedo(jnp.array([0.0, 0.0, 1.0]))  # a black base: the coat's F(0) = 0.04
-        >>> bool(abs(float(e[0]) - 0.04) < 0.015)
-        True
-        """
+        """Directional albedo by the walk; ``method`` and ``n`` are not read (the count is ``n_samples``)."""
         wo = jnp.asarray(wo)
         key = jax.random.PRNGKey(0) if key is None else key
         e = jnp.mean(self._walk(wo, None, key, energy=True), axis=0)
         return jnp.where((wo[..., 2] > COS_EPS)[..., None], e, 0)
 
     def pdf(self, wo, wi):
-        """Not available: the walk has no closed-form density (use :class:`Layered` or
-        :class:`Plastic` for sampling and multiple importance sampling).
-
-        Parameters
-        ----------
-        wo, wi : array_like, shape (..., 3)
-            Unit directions.
-
-        Returns
-        -------
-        NoReturn
-            It always raises.
-
-        Raises
-        ------
-        NotImplementedError
-            Always.
-
-        Examples
-        --------
-        >>> import jax.numpy as jnp
-        >>> from matfit.models import Lambert, SmoothDielectric, StochasticLayered
-        >>> up = jnp.array([0.0, 0.0, 1.0])
-        >>> StochasticLayered(SmoothDielectric(1.5), Lambert(0.5)).pdf(up, up)
-        Traceback (most recent call last):
-        ...
-        NotImplementedError: StochasticLayered has no closed-form pdf; use Layered or Plastic for sampling and MIS
-        """
+        """Raises ``NotImplementedError``: the walk has no closed-form density."""
         raise NotImplementedError("StochasticLayered has no closed-form pdf; use Layered or Plastic for sampling and MIS")
 
     def sample(self, wo, u):
-        """Not available: the model is an evaluation reference (sample with :class:`Layered` or
-        :class:`Plastic`).
-
-        Parameters
-        ----------
-        wo : array_like, shape (..., 3)
-            Unit directions.
-        u : array_like, shape (..., 3)
-            Uniform numbers.
-
-        Returns
-        -------
-        NoReturn
-            It always raises.
-
-        Raises
-        ------
-        NotImplementedError
-            Always.
-
-        Examples
-        --------
-        >>> import jax.numpy as jnp
-        >>> from matfit.models import Lambert, SmoothDielectric, StochasticLayered
-        >>> StochasticLayered(SmoothDielectric(1.5), Lambert(0.5)).sample(jnp.array([0.0, 0.0, 1.0]), jnp.zeros(3))
-        Traceback (most recent call last):
-        ...
-        NotImplementedError: StochasticLayered is an evaluation reference; sample with Layered or Plastic
-        """
+        """Raises ``NotImplementedError``: the model is an evaluation reference."""
         raise NotImplementedError("StochasticLayered is an evaluation reference; sample with Layered or Plastic")

@@ -1,23 +1,4 @@
-r"""Rough conductor on a tabulated microfacet distribution (:class:`~matfit.microfacet.TabulatedNDF`).
-
-.. math::
-    f(\omega_o, \omega_i) = \frac{D(\omega_h)\,F(\omega_o\cdot\omega_h;\ \eta, k)\,
-        G_2(\omega_o, \omega_i, \omega_h)}{4\cos\theta_o\cos\theta_i}
-
-for :math:`\cos\theta_o, \cos\theta_i >` ``COS_EPS``, else 0: :class:`~matfit.models.RoughConductor`'s
-Cook-Torrance form with :math:`D` read from a table (e.g. extracted from a measurement by
-:func:`matfit.microfacet.extract_ndf`) and Smith's :math:`G_2` derived from it.
-
-Sampling: normals from :math:`D\cos` (the table's exact inverse CDF), reflected about the sampled
-normal; pdf = :math:`D(\omega_h)\cos\theta_h / (4\,\omega_o\cdot\omega_h)`. Samples that leave below
-the horizon, or come from a microfacet facing away from ``wo``, are invalid (pdf 0).
-
-References
-----------
-- R. L. Cook, K. E. Torrance, "A Reflectance Model for Computer Graphics", ToG 1(1), 1982.
-- J. Dupuy, E. Heitz, J.-C. Iehl, P. Poulin, V. Ostromoukhov, "Extracting Microfacet-based BRDF
-  Parameters from Arbitrary Materials with Power Iterations", CGF 34(4), 2015.
-"""
+"""Rough conductor on a tabulated microfacet distribution (:class:`~matfit.microfacet.TabulatedNDF`)."""
 
 from __future__ import annotations
 
@@ -36,7 +17,18 @@ __all__ = ["TabulatedMicrofacet"]
 
 
 class TabulatedMicrofacet(AbstractBSDF):
-    """Rough metal on a tabulated isotropic distribution: D F G2 / (4 cos cos), the conductor Fresnel.
+    r"""Rough metal on a tabulated isotropic distribution, with the conductor Fresnel:
+
+    .. math::
+        f(\omega_o, \omega_i) = \frac{D(\omega_h)\,F(\omega_o\cdot\omega_h;\ \eta, k)\,
+            G_2(\omega_o, \omega_i, \omega_h)}{4\cos\theta_o\cos\theta_i}
+
+    for :math:`\cos\theta_o, \cos\theta_i >` ``COS_EPS``, else 0: :class:`RoughConductor`'s
+    Cook-Torrance form with :math:`D` read from a table (e.g. extracted from a measurement by
+    :func:`matfit.microfacet.extract_ndf`) and Smith's :math:`G_2` derived from it. Sampling:
+    normals from :math:`D\cos` (the table's exact inverse CDF), reflected about the sampled
+    normal; pdf = :math:`D(\omega_h)\cos\theta_h / (4\,\omega_o\cdot\omega_h)`. Samples that leave
+    below the horizon, or come from a microfacet facing away from ``wo``, are invalid (pdf 0).
 
     Parameters
     ----------
@@ -50,20 +42,17 @@ class TabulatedMicrofacet(AbstractBSDF):
     masking : {"separable", "height_correlated"}, default "separable"; static, not differentiable
         Smith masking form (:meth:`~matfit.microfacet.AbstractDistribution.G2`).
 
-    Attributes
-    ----------
-    ndf : TabulatedNDF
-        The distribution.
-    eta, k : jax.Array, (..., C)
-        The complex index.
-    masking : str
-        Smith masking form (static).
-
     Raises
     ------
     ParameterError
         For an ``ndf`` that is not a :class:`~matfit.microfacet.TabulatedNDF`, an index out of
         range, an unknown masking form.
+
+    References
+    ----------
+    - R. L. Cook, K. E. Torrance, "A Reflectance Model for Computer Graphics", ToG 1(1), 1982.
+    - J. Dupuy, E. Heitz, J.-C. Iehl, P. Poulin, V. Ostromoukhov, "Extracting Microfacet-based BRDF
+      Parameters from Arbitrary Materials with Power Iterations", CGF 34(4), 2015.
 
     Examples
     --------

@@ -4,8 +4,7 @@ importance sampling of the map by its luminance (piecewise-constant 2D distribut
 World frame: the camera looks along -z from +z, image right is +x, image up (and the sky's zenith)
 is +y. An equirectangular map of shape (H, W, 3) has row ``i`` at polar angle
 ``theta = (i + 0.5) pi / H`` from +y and column ``j`` at ``phi = (j + 0.5) 2 pi / W`` measured from +x
-towards +z: ``d = (sin theta cos phi, cos theta, sin theta sin phi)``.
-"""
+towards +z: ``d = (sin theta cos phi, cos theta, sin theta sin phi)``."""
 
 from __future__ import annotations
 
@@ -34,28 +33,20 @@ def _dirs(H, W):
 
 
 def sky_map(shape=SKY_SHAPE, sun=True):
-    """The built-in procedural sky as an (H, W, 3) float32 equirectangular map: a blue zenith
-    fading to a pale horizon, a dim brown ground, and a small bright sun.
+    """The built-in procedural sky as an (H, W, 3) float32 equirectangular map of linear radiance: a
+    blue zenith fading to a pale horizon, a dim brown ground, and a small sun far brighter than the sky.
 
     Parameters
     ----------
     shape : tuple of int, default SKY_SHAPE
         ``(H, W)`` of the map.
     sun : bool, default True
-        Rasterize the sun into the map (False: the sky and ground alone, for renderers that
-        treat the sun as a light of its own).
+        Rasterize the sun (:data:`SUN_DIRECTION`, :data:`SUN_RADIUS`); False: sky and ground alone,
+        for renderers that treat the sun as a light of its own.
 
     Returns
     -------
     numpy.ndarray, (H, W, 3) float32
-        Linear radiance; the sun (:data:`SUN_DIRECTION`, :data:`SUN_RADIUS`) is far brighter
-        than the sky.
-
-    Examples
-    --------
-    >>> sky = sky_map((16, 32))
-    >>> sky.shape, sky.dtype.name, bool(sky[0].mean() > sky[-1].mean())   # the zenith row is brighter
-    ((16, 32, 3), 'float32', True)
     """
     d = _dirs(*shape)
     up = d[..., 1]
@@ -69,19 +60,18 @@ def sky_map(shape=SKY_SHAPE, sun=True):
 
 
 def load_environment(environment):
-    """``None`` for the furnace, else an (H, W, 3) float32 map for ``"sky"``, an array, or a file
-    (``.npy``, or ``.hdr``/``.exr`` through ``imageio``).
+    """``None`` for the furnace, else an (H, W, 3) float32 map.
 
     Parameters
     ----------
     environment : "furnace", "sky", array_like or str or Path
         The uniform furnace, the built-in sky (:func:`sky_map`), an (H, W, 3) or (H, W, 4)
-        equirectangular map (alpha dropped), or a file holding one.
+        equirectangular map (alpha dropped), or a file holding one (``.npy``, or ``.hdr``/``.exr``
+        through ``imageio``).
 
     Returns
     -------
     numpy.ndarray, (H, W, 3) float32, or None
-        The map (None for the furnace).
 
     Raises
     ------
@@ -90,14 +80,6 @@ def load_environment(environment):
     DataFormatError
         A map that is not (H, W, 3) with H, W >= 2, not numeric, or with non-finite or
         negative values.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> load_environment("furnace") is None, load_environment("sky").shape
-    (True, (128, 256, 3))
-    >>> load_environment(np.ones((2, 4, 4))).shape      # RGBA: the alpha channel is dropped
-    (2, 4, 3)
     """
     if isinstance(environment, str) and environment == "furnace":
         return None
@@ -136,9 +118,9 @@ def _check_map(a, where):
 class Environment(eqx.Module):
     """An equirectangular map with its sampling tables (marginal over rows, conditional over columns).
 
-    Build one with :meth:`Environment.of`. Directions are drawn with a density proportional
-    to the pixels' luminance times their solid angle, plus a small floor so that every pixel
-    can be drawn, uniformly in solid angle inside the pixel.
+    Build one with :meth:`Environment.of`. Directions are drawn with a density proportional to the
+    pixels' luminance times their solid angle, plus a small floor so that every pixel can be drawn,
+    uniformly in solid angle inside the pixel.
 
     Attributes
     ----------
@@ -157,11 +139,14 @@ class Environment(eqx.Module):
 
     Examples
     --------
+    >>> import jax.numpy as jnp
     >>> import numpy as np
     >>> from matfit.render import Environment
-    >>> env = Environment.of(np.ones((4, 8, 3), np.float32))
-    >>> env.image.shape, float(env.row_cdf[-1]), round(float(env.pixel_p.sum()), 6)
-    ((4, 8, 3), 1.0, 1.0)
+    >>> image = np.zeros((4, 8, 3), np.float32); image[1, 2] = 100.0    # one bright pixel
+    >>> env = Environment.of(image)
+    >>> d, pdf = env.sample(jnp.array([0.5]), jnp.array([0.5]))        # directions and their density
+    >>> env.lookup(d).tolist(), bool(jnp.allclose(pdf, env.pdf(d)))
+    ([[100.0, 100.0, 100.0]], True)
     """
 
     image: jnp.ndarray  # (H, W, 3)
@@ -171,25 +156,7 @@ class Environment(eqx.Module):
 
     @classmethod
     def of(cls, image):
-        """The environment of an (H, W, 3) map, with its sampling tables.
-
-        Parameters
-        ----------
-        image : array_like, (H, W, 3)
-            Linear radiance, finite and >= 0 (as :func:`load_environment` returns).
-
-        Returns
-        -------
-        Environment
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from matfit.render import Environment, sky_map
-        >>> env = Environment.of(sky_map((16, 32)))
-        >>> float(env.pixel_p.max() / env.pixel_p.min()) > 100     # the sun is drawn most often
-        True
-        """
+        """The environment of an (H, W, 3) map of linear radiance, finite and >= 0, with its sampling tables."""
         img = np.asarray(image, np.float64)
         H, W = img.shape[:2]
         th = (np.arange(H) + 0.5) * np.pi / H
@@ -222,80 +189,17 @@ class Environment(eqx.Module):
         return self.pixel_p[i, j] / area
 
     def lookup(self, d):
-        """Radiance (..., 3) in world directions ``d`` (..., 3).
-
-        Parameters
-        ----------
-        d : jax.Array, (..., 3)
-            Unit directions, world frame.
-
-        Returns
-        -------
-        jax.Array, (..., 3)
-            The radiance of the pixel each direction falls in.
-
-        Examples
-        --------
-        >>> import jax.numpy as jnp
-        >>> from matfit.render import Environment, sky_map
-        >>> env = Environment.of(sky_map((16, 32)))
-        >>> zenith, nadir = env.lookup(jnp.array([[0.0, 1.0, 0.0], [0.0, -1.0, 0.0]]))
-        >>> bool(zenith[2] > nadir[2])                            # blue sky above, brown ground below
-        True
-        """
+        """Radiance (..., 3) of the pixels that world directions ``d`` (..., 3) fall in."""
         i, j = self._pixel(d)
         return self.image[i, j]
 
     def pdf(self, d):
-        """Solid-angle density of :meth:`sample` at ``d``.
-
-        Parameters
-        ----------
-        d : jax.Array, (..., 3)
-            Unit directions in the world frame, e.g. drawn by :meth:`sample` or by a BSDF.
-
-        Returns
-        -------
-        jax.Array, (...,)
-            The density per steradian.
-
-        Examples
-        --------
-        >>> import jax.numpy as jnp
-        >>> import numpy as np
-        >>> from matfit.render import Environment
-        >>> env = Environment.of(np.ones((4, 8, 3), np.float32))   # uniform: 1 / (4 pi) everywhere
-        >>> round(float(env.pdf(jnp.array([1.0, 0.0, 0.0])) * 4 * np.pi), 5)
-        1.0
-        """
+        """Solid-angle density (1/sr) of :meth:`sample` at world directions ``d`` (..., 3)."""
         return self._density(*self._pixel(d))
 
     def sample(self, u1, u2):
-        """``(d, pdf)``: a direction drawn with density proportional to luminance.
-
-        Parameters
-        ----------
-        u1, u2 : jax.Array, (...,)
-            Uniform numbers in [0, 1): ``u1`` picks the row, ``u2`` the column.
-
-        Returns
-        -------
-        d : jax.Array, (..., 3)
-            Unit directions, world frame.
-        pdf : jax.Array, (...,)
-            Their solid-angle density (that of :meth:`pdf`).
-
-        Examples
-        --------
-        >>> import jax.numpy as jnp
-        >>> import numpy as np
-        >>> from matfit.render import Environment
-        >>> image = np.zeros((4, 8, 3), np.float32); image[1, 2] = 100.0    # one bright pixel
-        >>> env = Environment.of(image)
-        >>> d, pdf = env.sample(jnp.array([0.5]), jnp.array([0.5]))
-        >>> env.lookup(d).tolist(), bool(jnp.allclose(pdf, env.pdf(d)))
-        ([[100.0, 100.0, 100.0]], True)
-        """
+        """``(d, pdf)``: world directions drawn by luminance and their solid-angle density; of
+        uniform ``u1`` (picks the row) and ``u2`` (the column)."""
         H, W = self.image.shape[:2]
         i = jnp.clip(jnp.searchsorted(self.row_cdf, u1, side="right") - 1, 0, H - 1)
         r0, r1 = self.row_cdf[i], self.row_cdf[i + 1]
@@ -315,24 +219,6 @@ class Environment(eqx.Module):
 
 
 def jax_searchsorted_rows(cdf, u):
-    """Per-element ``searchsorted(cdf[k], u[k], side="right")`` for rows ``cdf`` (..., W + 1).
-
-    Parameters
-    ----------
-    cdf : jax.Array, (..., W + 1)
-        Non-decreasing rows.
-    u : jax.Array, (...,)
-        One value per row.
-
-    Returns
-    -------
-    jax.Array of int, (...,)
-        The number of entries of each row that are <= its value.
-
-    Examples
-    --------
-    >>> import jax.numpy as jnp
-    >>> jax_searchsorted_rows(jnp.array([[0.0, 0.5, 1.0], [0.0, 0.1, 1.0]]), jnp.array([0.6, 0.05])).tolist()
-    [2, 1]
-    """
+    """Per-element ``searchsorted(cdf[k], u[k], side="right")`` for rows ``cdf`` (..., W + 1):
+    how many entries of each row are <= its value."""
     return jnp.sum(cdf <= u[..., None], axis=-1)

@@ -75,8 +75,7 @@ def _uses_bsdf(model, strategy, furnace):
 
 
 def sphere_frames(size):
-    """``(inside, frames)`` of a size x size image of the unit sphere seen along -z: the pixels
-    inside it and each pixel's local frame, rows (tangent, bitangent, normal), shape (size, size, 3, 3).
+    """The unit sphere seen along -z in a ``size`` x ``size`` image.
 
     Parameters
     ----------
@@ -84,13 +83,10 @@ def sphere_frames(size):
 
     Returns
     -------
-    tuple of numpy.ndarray
-
-    Examples
-    --------
-    >>> inside, frames = sphere_frames(8)
-    >>> int(inside.sum()), frames[4, 4, 2].round(2).tolist()   # the centre pixel's normal
-    (52, [0.12, -0.12, 0.98])
+    inside : numpy.ndarray, (size, size) bool
+        The pixels inside the sphere.
+    frames : numpy.ndarray, (size, size, 3, 3)
+        Each pixel's local frame, rows (tangent, bitangent, normal).
     """
     c = (np.arange(size) + 0.5) / size * 2 - 1
     X, Y = np.meshgrid(c, -c)  # row 0 at the top
@@ -166,20 +162,16 @@ def render_sphere(model, environment="sky", size=256, spp=64, seed=0, strategy="
     Parameters
     ----------
     model : matfit.models.AbstractBSDF
+        1 or 3 channels.
     environment : "furnace", "sky", (H, W, 3) array, or path to a .npy/.hdr/.exr map
-        ``"furnace"``: uniform radiance 1; ``"sky"``: the built-in procedural sky
-        (:func:`~matfit.render.sky_map`).
-    size : int
-        Image width and height in pixels.
-    spp : int
-        Samples per pixel (each a BSDF sample and, with ``"mis"``, an environment sample).
-    seed : int
+        ``"furnace"``: uniform radiance 1; ``"sky"``: :func:`~matfit.render.sky_map`.
+    size, spp, seed : int
+        Image width and height in pixels; samples per pixel (each a BSDF sample and, with
+        ``"mis"``, an environment sample); the random seed.
     strategy : {"mis", "bsdf", "env"}
         BSDF sampling, environment sampling, or both with multiple importance sampling.
-    return_stats : bool
-        Also return :class:`RenderStats`.
-    progress : bool
-        Show a progress bar (tqdm) over blocks of samples.
+    return_stats, progress : bool
+        Also return :class:`RenderStats`; show a progress bar (tqdm) over blocks of samples.
 
     Returns
     -------
@@ -255,33 +247,22 @@ def _below_count(env, frames, spp, seed):
 
 
 def tonemap(img, exposure=1.0):
-    """Linear radiance -> 8-bit sRGB (clipped), as a (H, W, 3) uint8 array.
+    """Linear radiance times ``exposure``, clipped to [0, 1] and sRGB-encoded, as 8-bit codes.
 
     Parameters
     ----------
     img : array_like, (H, W, 3)
-        Linear radiance.
     exposure : float, default 1
-        Factor applied before clipping to [0, 1].
 
     Returns
     -------
     numpy.ndarray, (H, W, 3) uint8
-        sRGB-encoded codes.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> tonemap(np.ones((1, 1, 3)))[0, 0].tolist()
-    [255, 255, 255]
-    >>> tonemap(np.full((1, 1, 3), 0.5), exposure=0.5)[0, 0].tolist()   # linear 0.25 is sRGB 137
-    [137, 137, 137]
     """
     return np.round(srgb_encode(np.clip(np.asarray(img, np.float64) * exposure, 0, 1)) * 255).astype(np.uint8)
 
 
 def srgb_encode(x):
-    """The sRGB transfer function: linear values in [0, 1] to codes in [0, 1] (IEC 61966-2-1).
+    """The sRGB transfer function (IEC 61966-2-1): linear values in [0, 1] to codes in [0, 1].
 
     Parameters
     ----------
@@ -290,11 +271,6 @@ def srgb_encode(x):
     Returns
     -------
     numpy.ndarray
-
-    Examples
-    --------
-    >>> float(srgb_encode(0.25).round(4)), float(srgb_decode(srgb_encode(0.25)).round(6))
-    (0.5371, 0.25)
     """
     x = np.asarray(x, np.float64)
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(np.maximum(x, 0.0031308), 1 / 2.4) - 0.055)
@@ -310,40 +286,23 @@ def srgb_decode(c):
     Returns
     -------
     numpy.ndarray
-
-    Examples
-    --------
-    >>> float(srgb_decode(1.0))
-    1.0
     """
     c = np.asarray(c, np.float64)
     return np.where(c <= 0.04045, c / 12.92, ((np.maximum(c, 0.04045) + 0.055) / 1.055) ** 2.4)
 
 
 def save_png(path, img, exposure=1.0):
-    """Write a tone-mapped sRGB PNG of linear ``img`` (matplotlib's writer).
+    """Write a :func:`tonemap` PNG of linear ``img`` (matplotlib's writer; parent folders are created).
 
     Parameters
     ----------
     path : str or PathLike
-        The file to write (parent folders are created).
     img : array_like, (H, W, 3)
-        Linear radiance (:func:`tonemap` encodes it).
     exposure : float, default 1
 
     Returns
     -------
     Path
-        The PNG written.
-
-    Examples
-    --------
-    >>> import tempfile
-    >>> import numpy as np
-    >>> with tempfile.TemporaryDirectory() as d:
-    ...     p = save_png(f"{d}/previews/grey.png", np.full((4, 6, 3), 0.18))
-    ...     p.name, p.read_bytes()[:8] == b"\\x89PNG\\r\\n\\x1a\\n"
-    ('grey.png', True)
     """
     import matplotlib
 
@@ -357,7 +316,8 @@ def save_png(path, img, exposure=1.0):
 
 
 def image_ciede2000(a, b):
-    """Mean CIEDE2000 between two linear sRGB images (``colour.delta_E``).
+    """Mean CIEDE2000 (``colour.delta_E``) between two linear sRGB images (G. Sharma, W. Wu,
+    E. N. Dalal, Color Research & Application 30(1), 2005).
 
     Parameters
     ----------
@@ -367,21 +327,6 @@ def image_ciede2000(a, b):
     Returns
     -------
     float
-        The mean colour difference over the pixels.
-
-    References
-    ----------
-    G. Sharma, W. Wu, E. N. Dalal, "The CIEDE2000 color-difference formula: implementation
-    notes, supplementary test data, and mathematical observations", Color Research &
-    Application 30(1), 2005.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> image_ciede2000(np.full((2, 2, 3), 0.5), np.full((2, 2, 3), 0.5))
-    0.0
-    >>> bool(image_ciede2000(np.full((2, 2, 3), 0.5), np.full((2, 2, 3), 0.55)) > 1)   # visible
-    True
     """
     import colour
 
