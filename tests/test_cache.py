@@ -42,7 +42,6 @@ def _run(env):
     return json.loads(line[len("RESULT "):])
 
 
-@pytest.mark.check
 def test_second_process_loads_compiled_programs(tmp_path):
     env = {k: v for k, v in os.environ.items() if k != "MATFIT_NO_CACHE"}
     env["MATFIT_CACHE_DIR"] = str(tmp_path / "cache")

@@ -33,6 +33,7 @@ def _table(model, n=1500, seed=0):
     return Table(wo=wo, wi=wi, values=np.broadcast_to(y, (2 * n, 3)).copy())
 
 
+@pytest.mark.check
 def test_grazing_excess_names_sheen_only_where_the_backward_rows_show_it():
     """paper_white and colodur's grazing excess lies in forward rows only (the RGL tables hold no
     backward grazing rows there): the missing effect must not be called a sheen lobe."""
@@ -50,7 +51,6 @@ def test_grazing_excess_names_sheen_only_where_the_backward_rows_show_it():
     assert _missing({"grazing_excess": False}) == []
 
 
-@pytest.mark.check
 def test_cues_see_what_the_material_shows():
     grey = appearance_cues(_table(Plastic(0.5, 0.1, 1.5)))
     assert not grey["coloured_highlight"] and not grey["colour_shift"] and not grey["second_lobe"]

@@ -31,6 +31,7 @@ def _table(n=96, seed=0, params=(0.3, [0.2, 0.9, 1.4], [3.6, 2.5, 1.9]), noise=0
     return Table(wo=wo, wi=wi, values=f * (1 + noise * rng.standard_normal(f.shape)), channels="rgb")
 
 
+@pytest.mark.check
 def test_column_groups_structure():
     par = Parametrization("conductor", 3, tied=("k",))
     seeds, owner = column_groups(par)
@@ -54,7 +55,6 @@ def test_grouped_jacobian_matches_forward_mode(family, x64):
     np.testing.assert_allclose(np.asarray(J), np.asarray(J_ad), atol=1e-6 * scale, rtol=1e-5)
 
 
-@pytest.mark.check
 def test_lm_fd_reaches_scipy_loss(x64):
     from scipy.optimize import least_squares
 

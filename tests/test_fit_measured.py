@@ -72,7 +72,6 @@ def test_split_is_the_documented_disjoint_80_20_split():
     assert np.array_equal(again.values, train.values)
 
 
-@pytest.mark.check
 def test_padding_fixes_the_shape_and_changes_no_fit():
     from matfit.fitting import fit
 

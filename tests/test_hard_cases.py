@@ -500,7 +500,6 @@ def test_property_lambert(albedo, d, u):
 @given(alpha=alpha_st, eta=cond_eta, k=cond_k, d=dirs, u=u_st)
 @example(alpha=0.0, eta=[1.0, 1.0, 1.0], k=[0.0, 0.0, 1.5393532296991593e-35], d=([0.0] * NP, [0.0] * NP, [0.0] * NP),
          u=[(0.0, 0.0, 0.0)] * NP)  # found by hypothesis: a tiny k, whose 1/k^2 overflowed a Fresnel gradient
-@pytest.mark.check
 def test_property_rough_conductor(alpha, eta, k, d, u):
     m = RoughConductor(HDT(alpha), np.asarray(eta, HDT), np.asarray(k, HDT))
     _check_prop(m, *_dirs(d), u, per_sample_energy=True)

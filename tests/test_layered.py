@@ -660,10 +660,12 @@ def test_gradients_finite_edges(smooth, dt):
 # float32 on a subset of the structures (each float32 structure is a new compilation).
 F32_MODELS = ["plastic-smooth-noir", "layered-smooth-lambert-abs", "coated-conductor-rough", "blend-roughplastic-conductor"]
 DTYPE_CASES = [(n, np.float64) for n in MODEL_IDS] + [(n, np.float32) for n in F32_MODELS]
+# the quick tier: the float32 cases (each a layered structure of its own)
+DTYPE_PARAMS = [pytest.param(n, d, id=f"{n}-{np.dtype(d).name}", marks=pytest.mark.check if d == np.float32 else ())
+                for n, d in DTYPE_CASES]
 
 
-@pytest.mark.check
-@pytest.mark.parametrize("name,dt", DTYPE_CASES, ids=[f"{n}-{np.dtype(d).name}" for n, d in DTYPE_CASES])
+@pytest.mark.parametrize("name,dt", DTYPE_PARAMS)
 def test_dtypes_finite(name, dt):
     model = make(name, dt)
     f, p = _evalpdf(model, arr(_pad(EDGE_WO), dt), arr(_pad(EDGE_WI), dt))

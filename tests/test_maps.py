@@ -83,7 +83,6 @@ def test_standard_errors_are_calibrated(noisy_map):
         assert 0.75 < np.std(z) < 1.35, (k, np.std(z))
 
 
-@pytest.mark.check
 def test_noise_free_map_is_exact():
     wo, wi = _directions()
     truth = ramp_maps(6, 5)

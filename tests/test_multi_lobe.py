@@ -151,8 +151,8 @@ def pairs_for(rng, n=300):
 # ------------------------------------------------------------------------------------------------
 # 1. eval and pdf vs the reference; special cases equal the single-lobe models
 # ------------------------------------------------------------------------------------------------
-@pytest.mark.check
-@pytest.mark.parametrize("case", list(LOBE_CASES))
+@pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.check if c == "metal-two-scales" else ())
+                                  for c in LOBE_CASES])
 def test_eval_and_pdf_match_reference(case, x64, rng):
     wo, wi = pairs_for(rng)
     model = build(case)

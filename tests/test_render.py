@@ -78,7 +78,6 @@ def test_bsdf_env_and_mis_sampling_agree_within_noise(model):
         assert np.all(z < 5), (strategy, m, ref, se, ref_se)
 
 
-@pytest.mark.check
 def test_only_what_the_scene_calls_for_is_computed():
     _, s = render_sphere(Lambert(0.5), "furnace", size=16, spp=4, return_stats=True)
     assert s.env_samples == 0 and s.env_lookups == 0 and s.evaluations == 0 and s.bsdf_samples > 0

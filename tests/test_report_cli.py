@@ -68,6 +68,7 @@ class FakePosterior:
 
 
 # ---------------------------------------------------------------------------------- model choice
+@pytest.mark.check
 def test_recommend_rule():
     rows = [{"model": "plastic", "p": 5, "holdout_rmse": 1.00}, {"model": "lambert", "p": 3, "holdout_rmse": 1.009},
             {"model": "conductor", "p": 7, "holdout_rmse": 0.99}, {"model": "x", "error": "failed"}]
@@ -155,7 +156,6 @@ def test_report_history_and_no_truth(cmp_glossy, glossy, tmp_path):
 
 
 # ---------------------------------------------------------------------------------- CLI
-@pytest.mark.check
 def test_cli_fit_npz_with_report(glossy, cmp_glossy, tmp_path, capsys):
     path = tmp_path / "gold.npz"
     save(path, glossy)

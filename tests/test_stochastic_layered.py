@@ -46,7 +46,6 @@ def test_white_base_lossless_coat_keeps_energy():
     np.testing.assert_allclose(e, 1.0, atol=1e-9)
 
 
-@pytest.mark.check
 def test_eval_matches_exact_analytic_smooth_coat():
     """For a smooth coat over a Lambertian base, Plastic (internal reflection) is exact."""
     wo = _dirs()
@@ -102,6 +101,7 @@ def test_analytic_layered_error_is_measurable():
     assert e_ww < e_ref - 0.1, (e_ww, e_ref)
 
 
+@pytest.mark.check
 def test_no_pdf_or_sample():
     ref = StochasticLayered(SmoothDielectric(1.5), Lambert(0.5))
     with pytest.raises(NotImplementedError, match="closed-form pdf"):
