@@ -12,8 +12,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from matfit.fitting import Problem
 from matfit.fitting._solver import compiled_solver
-from matfit.fitting.fit import initial_guess, prepared_residual_fn, split_residual_fn, table_arrays
+from matfit.fitting._residuals import prepared_residual_fn, split_residual_fn, table_arrays
+from matfit.fitting.fit import initial_guess
 from matfit.fitting.lm import GRAM_BLOCK, _gram, _moments, _spd_solve, column_groups, jacobian, lm_fd, normal_equations
 from matfit.fitting.params import Parametrization
 
@@ -115,7 +117,7 @@ def test_split_solver_reaches_interleaved_solution(x64):
     z0 = jnp.asarray(par.z_from_theta(initial_guess(t, par)))[None]
     out = {}
     for split in (False, True):
-        _, run, _, _ = compiled_solver("conductor", 3, (), (), "lm_fd", "e2", None, 1.0, 128, 1e-10, 1e-12, split)
+        _, run, _, _ = compiled_solver(Problem.of("conductor", 3, loss="e2"), "lm_fd", 128, 1e-10, 1e-12, split)
         z, obj, steps, ok = run(z0, arrays)
         assert bool(ok[0])
         out[split] = float(obj[0])

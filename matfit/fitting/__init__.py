@@ -7,10 +7,11 @@ from .methods import DEFAULT_METHOD, Method, get_method
 from .params import (FAMILIES, REDUCE_TOL, Family, Lobe, Param, Parametrization, TruthMap, compose_family, family_describing,
                      get_family, reduced_family)
 from ._compose import METAL_ETA_RANGE, METAL_K_RANGE
+from ._problem import Problem
 
 __all__ = [
     "FAMILIES", "Family", "Param", "Parametrization", "TruthMap", "family_describing", "get_family", "Lobe",
-    "compose_family", "METAL_ETA_RANGE", "METAL_K_RANGE", "reduced_family", "REDUCE_TOL",
+    "compose_family", "METAL_ETA_RANGE", "METAL_K_RANGE", "reduced_family", "REDUCE_TOL", "Problem",
     "LOSSES", "residuals", "DEFAULT_METHOD", "Method", "get_method",
     "METHODS", "FitError", "FitResult", "fit", "fit_batch", "initial_guess", "initial_guesses",
     "BatchFit", "CHANNEL_RHO_REFIT", "channel_correlation", "fit_arrays", "guesses_from_arrays", "NOISE_FLOOR", "REFIT_MIN_BATCH", "REFIT_SIGMAS", "REFIT_STARTS", "SUSPECT_FACTOR",

@@ -11,10 +11,10 @@ import jax
 import numpy as np
 
 from ..errors import ParameterError
-from .fit import fit_starts, objective_fn, prepared_residual_fn, table_arrays
-from .losses import check_loss
+from ._problem import Problem
+from ._residuals import table_arrays
+from ._starts import fit_starts
 from .methods import METHODS
-from .params import Parametrization
 
 __all__ = ["loss_history"]
 
@@ -57,13 +57,12 @@ def loss_history(table, family, loss="l2", method="lm", starts=4, seed=0, max_st
     if method not in traced:
         raise ParameterError(f"loss_history: method must be one of {traced} (solvers that take a "
                              f"verbose callback), got {method!r}")
-    check_loss(loss, robust)
-    par = Parametrization(family, table.n_channels, {k: np.atleast_1d(np.asarray(v, float)).tolist()
-                                                     for k, v in (fixed or {}).items()}, tuple(tied))
-    prepare, fn_nc = prepared_residual_fn(par, loss, robust, float(robust_scale))
+    problem = Problem.of(family, table.n_channels, fixed, tied, loss, robust, robust_scale)
+    par = problem.par
+    prepare, fn_nc = problem.residuals
     arrays = table_arrays(table, dtype)
     # the starts fit() runs (init replaces entries of the data-driven guess of start 0)
-    z0s = fit_starts(table, par, starts, seed, jax.jit(objective_fn(prepare, fn_nc)), arrays, init)
+    z0s = fit_starts(table, par, starts, seed, jax.jit(problem.objective), arrays, init)
     prepared = prepare(arrays)
     solver = METHODS[method].build(rtol, atol)
     record = []

@@ -5,6 +5,7 @@ same shape and new parameter values never compile again."""
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import jax
@@ -13,12 +14,10 @@ import numpy as np
 
 from ..cache import LOOP_COMPILER_OPTIONS, loop_jit, persistent_jit
 from ..fast import supports_soa
-from .lm import column_groups, half_sq, widen
+from .lm import half_sq, widen
 from .methods import METHODS
-from .params import Parametrization
-from ._residuals import objective_fn, prepared_residual_fn, split_residual_fn
 
-__all__ = ["COARSE_ROWS", "coarse_rows", "compiled_solver", "fixed_items", "batched_run"]
+__all__ = ["COARSE_ROWS", "coarse_rows", "compiled_solver", "batched_run"]
 
 
 #: Rows of the subsample a large table's ``lm_fd`` fit is first solved on (see :func:`compiled_solver`).
@@ -36,7 +35,7 @@ def coarse_rows(arrays):
 
 
 @functools.lru_cache(maxsize=64)
-def compiled_solver(family, channels, fixed_items, tied, method, loss, robust, scale, max_steps, rtol, atol, split=False):
+def compiled_solver(problem, method, max_steps, rtol, atol, split=False):
     """Compiled multi-start solver for one configuration (cached: no recompilation).
 
     Returns ``(par, run, run_full, objective)``. ``run(z0s, arrays) -> (z, objective, steps,
@@ -54,17 +53,17 @@ def compiled_solver(family, channels, fixed_items, tied, method, loss, robust, s
     small fraction of the whole table's, and from there the full solve takes a few, to the same
     stopping tests. The other starts' objectives on the whole table are evaluated at their
     subset solutions, so several starts cost little more than one."""
-    par = Parametrization(family, channels, dict(fixed_items), tied)
+    par = problem.par
     solver = METHODS[method].build(rtol, atol)
-    prepare, fn = prepared_residual_fn(par, loss, robust, scale)  # fn: (N, C) residuals
+    prepare, fn = problem.residuals  # fn: (N, C) residuals
     flat = lambda z, a: fn(z, a).reshape(-1)  # noqa: E731  (solvers of flat residuals)
     channelled = solver.residuals == "channels"
     solve_prepare, solve_fn = prepare, (fn if channelled else flat)
     split = split and channelled and supports_soa(par.model(jnp.zeros(par.size)))
     if split:
-        solve_prepare, solve_fn = split_residual_fn(par, loss, robust, scale)
-    groups = column_groups(par)
-    objective = objective_fn(prepare, fn)
+        solve_prepare, solve_fn = problem.split_residuals
+    groups = problem.groups
+    objective = problem.objective
 
     def solve_all(z0s, arrays, wide=False):
         """``(prepared, z, obj, steps, ok, best, res, sub)``: every start's solution, objective on
@@ -119,15 +118,10 @@ def compiled_solver(family, channels, fixed_items, tied, method, loss, robust, s
 
     # traced once per machine, not per process (matfit.cache): a solver takes longer to trace
     # than its compiled program takes to load
-    key = (family, channels, fixed_items, tied, method, loss, robust, scale, max_steps, rtol, atol, split)
+    key = dataclasses.astuple(problem) + (method, max_steps, rtol, atol, split)
     # loop_jit: the solver loops run over the whole table (matfit.cache.LOOP_COMPILER_OPTIONS)
     return (par, loop_jit(run), persistent_jit(jax.jit(run_full), ("run_full",) + key, LOOP_COMPILER_OPTIONS),
             persistent_jit(jax.jit(objective), ("objective",) + key))
-
-
-def fixed_items(fixed):
-    """``fixed`` as a hashable key of the compiled-solver cache (:func:`compiled_solver`)."""
-    return tuple(sorted((k, tuple(np.atleast_1d(np.asarray(v, float)).tolist())) for k, v in (fixed or {}).items()))
 
 
 @functools.lru_cache(maxsize=16)

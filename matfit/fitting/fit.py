@@ -27,16 +27,16 @@ from ..parallel import device_count, pad_to_power_of_two
 from ..table import Table
 from . import _solver as solvers
 from ._memory import available_memory, check_memory, memory_estimate
+from ._problem import Problem
 from ._result import BatchFit, FitError, FitResult
-from ._residuals import (by_channel, objective_fn, prepared_residual_fn, split_residual_fn, split_rows,
-                         table_arrays)
+from ._residuals import split_rows, table_arrays
 from ._starts import (SCREEN_PER_START, compiled_helpers, fit_starts, guesses_from_arrays, initial_guess,
                       initial_guesses, screened_starts)
 from .diagnostics import diagnose
-from .lm import column_groups, group_map
-from .losses import check_loss, prepare_targets
+from .lm import group_map
+from .losses import prepare_targets
 from .methods import DEFAULT_METHOD, METHODS, get_method
-from .params import Parametrization, check_solver_options, reduced_family
+from .params import check_solver_options, reduced_family
 
 __all__ = ["fit", "fit_batch", "fit_arrays", "FitResult", "FitError", "BatchFit", "initial_guess", "initial_guesses",
            "guesses_from_arrays", "fit_starts", "memory_estimate", "SCREEN_PER_START", "REFIT_SIGMAS", "refit_line", "SUSPECT_FACTOR",
@@ -118,8 +118,8 @@ def covariance(gram, rss, dof, known_sigma, jac=None, res=None):
 
 
 @functools.lru_cache(maxsize=32)
-def _jacobian_program(par, loss):
-    """A jitted ``(z, arrays, moves) -> Jacobian (n, p)`` of the flat residuals (no robust loss) in
+def _jacobian_program(problem):
+    """A jitted ``(z, arrays, moves) -> Jacobian (n, p)`` of the flat residuals (of a problem without robust loss) in
     the natural parameters: grouped differences (:func:`~matfit.fitting.lm.column_groups`, one
     vmapped evaluation of the model) in ``theta``, a step of ``sqrt(eps) max(1, |theta|)`` towards
     the inside of each range (central, ``eps^(1/3)``, in float32), divided by the change of
@@ -127,8 +127,9 @@ def _jacobian_program(par, loss):
     is nonzero; a coordinate whose sigmoid is saturated in floating point gets a zero column, as
     the chain rule gave. Faster to compile than ``jax.jacfwd``, and as accurate
     (``docs/performance.md``)."""
-    prepare, fn = prepared_residual_fn(par, loss, None, 1.0)
-    seeds, owner = column_groups(par)
+    par = problem.par
+    prepare, fn = problem.residuals
+    seeds, owner = problem.groups
     lower, upper = par.lower_upper()
     bounded = np.isfinite(upper)  # sigmoid coordinates; the others are lower + exp(z)
 
@@ -299,20 +300,19 @@ def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust
         raise ParameterError("fit: name the family (model=...), or call matfit.fitting.fit to choose it")
     loss = "l2" if loss is None else loss
     get_method(method, "fit", model, loss)
-    check_loss(loss, robust)
     check_solver_options("fit", starts=starts, max_steps=max_steps, rtol=rtol, atol=atol, robust_scale=robust_scale,
                          dtype=dtype)
-    Parametrization(model, table.n_channels, fixed, tied).check_theta("fit: init", {} if init is None else init)
     C = table.n_channels
-    fixed_items = solvers.fixed_items(fixed)
-    par, _, run_full, objective = solvers.compiled_solver(model, C, fixed_items, tuple(tied), method, loss, robust, float(robust_scale),
-                                       int(max_steps), float(rtol), float(atol), device_count() == 1)
+    problem = Problem.of(model, C, fixed, tied, loss, robust, robust_scale)
+    problem.par.check_theta("fit: init", {} if init is None else init)
+    par, _, run_full, objective = solvers.compiled_solver(problem, method, int(max_steps), float(rtol), float(atol),
+                                                          device_count() == 1)
     w_eff = table.effective_weight()
     n_res = int(np.count_nonzero(w_eff))
     if n_res <= par.size:
         raise FitError(f"fit: the table has {n_res} usable residuals for {par.size} free parameters "
                        f"({', '.join(par.labels)}): at least {par.size + 1} are needed")
-    check_memory("fit", int(np.count_nonzero(np.any(w_eff > 0, axis=1))), C, len(column_groups(par)[0]), dtype)
+    check_memory("fit", int(np.count_nonzero(np.any(w_eff > 0, axis=1))), C, len(problem.groups[0]), dtype)
     arrays = table_arrays(table, dtype, weight=w_eff)
     n_rows = arrays[2].size
     rows = split_rows(arrays)
@@ -371,7 +371,7 @@ def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust
     if not known and robust is None and sub is None and n_rows <= SANDWICH_MAX:
         # the noise's size per residual is unknown (it may grow with the value): the sandwich,
         # from the Jacobian at the solution and the solver's residuals there (same flat layout)
-        jac = np.asarray(_jacobian_program(par, loss)(jnp.asarray(zb), arrays, dtheta != 0), float)
+        jac = np.asarray(_jacobian_program(problem)(jnp.asarray(zb), arrays, dtheta != 0), float)
     cov = covariance(At, rss, dof, known, *(() if jac is None else (jac, r_best.astype(float))))
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
     # each fitted value's variance from the parameters' (diagnostics: the noise scale of small values)
@@ -454,10 +454,9 @@ def fit_batch(tables, model="plastic", method=DEFAULT_METHOD, loss="l2", fixed=N
     if not get_method(method, "fit_batch", model, loss).batched:
         raise ParameterError(f"fit_batch: method {method!r} cannot fit tables in a batch; use one of "
                              f"{[k for k, v in METHODS.items() if v.batched]}")
-    check_loss(loss, None)
     check_solver_options("fit_batch", starts=starts, max_steps=max_steps, rtol=rtol, atol=atol, dtype=dtype)
     t0 = tables[0]
-    Parametrization(model, t0.n_channels, fixed, tied)
+    Problem.of(model, t0.n_channels, fixed, tied, loss)  # checked before the tables are stacked
     for i, t in enumerate(tables):
         if len(t) != len(t0) or t.n_channels != t0.n_channels:
             raise ParameterError(f"fit_batch: table {i} has shape ({len(t)}, {t.n_channels}), expected ({len(t0)}, {t0.n_channels})")
@@ -580,16 +579,13 @@ def fit_arrays(wo, wi, values, weight=None, *, model="plastic", method=DEFAULT_M
     """
     wo, wi, values = _check_stack(where, wo, wi, values, weight, valid)
     B, N, C = values.shape
-    check_loss(loss, None)
+    problem = Problem.of(model, C, fixed, tied, loss)
     check_solver_options(where, starts=starts, max_steps=max_steps, rtol=rtol, atol=atol, dtype=dtype)
     if not get_method(method, where, model, loss).batched:
         raise ParameterError(f"{where}: method {method!r} cannot fit tables in a batch; use one of "
                              f"{[k for k, v in METHODS.items() if v.batched]}")
-    Parametrization(model, C, fixed, tied)
-    fixed_items = solvers.fixed_items(fixed)
-    par, _, run_full, objective = solvers.compiled_solver(model, C, fixed_items, tuple(tied), method, loss, None, 1.0, int(max_steps),
-                                          float(rtol), float(atol))
-    check_memory(where, B * N, C, len(column_groups(par)[0]) * starts, dtype)
+    par, _, run_full, objective = solvers.compiled_solver(problem, method, int(max_steps), float(rtol), float(atol))
+    check_memory(where, B * N, C, len(problem.groups[0]) * starts, dtype)
     dt = dtype if dtype is not None else jnp.result_type(float)
     if np.dtype(dt) == np.float64 and not jax.config.jax_enable_x64:
         raise ParameterError(f"{where}: dtype float64 needs JAX's 64-bit mode (jax.config.update('jax_enable_x64', "

@@ -77,10 +77,8 @@ import numpy as np
 from ..errors import MatfitError, ParameterError
 from ..fast import supports_soa
 from ..table import Table
-from ._solver import fixed_items
-from .fit import split_residual_fn
-from .losses import check_loss, prepare_targets, residuals_from_targets
-from .params import Parametrization, get_family
+from ._problem import Problem
+from .losses import prepare_targets, residuals_from_targets
 
 __all__ = ["PosteriorResult", "LogProb", "SamplingError", "make_log_prob", "sample_posterior", "NOISE_MODES"]
 
@@ -113,8 +111,8 @@ class SamplingError(MatfitError):
 # The compiled log-probability (cached per configuration: new tables of the same shape, new
 # priors and new noise floors do not recompile).
 @functools.lru_cache(maxsize=32)
-def _compiled(family, channels, fixed_items, tied, loss, noise):
-    par = Parametrization(family, channels, dict(fixed_items), tied)
+def _compiled(problem, noise):
+    par, loss = problem.par, problem.loss
     p = par.size
     lo, hi = par.lower_upper()
     uni = np.where(np.isfinite(hi), -np.log(np.where(np.isfinite(hi), hi - lo, 1.0)), 0.0)
@@ -123,7 +121,7 @@ def _compiled(family, channels, fixed_items, tied, loss, noise):
     # (one single-output kernel per channel, an isotropic lobe on cosines only), faster than the
     # (N, C) layout. Their per-element arrays are laid out (C, n) then.
     soa = supports_soa(par.model(jnp.zeros(p)))
-    split_prepare, split_fn = split_residual_fn(par, loss, None, 1.0) if soa else (None, None)
+    split_prepare, split_fn = problem.split_residuals if soa else (None, None)
 
     def one(x, args):
         # data, target, factor: the directions and the data's part of the residuals
@@ -339,17 +337,15 @@ def make_log_prob(table, model="plastic", fixed=None, tied=(), loss="l2", noise=
     """
     if not isinstance(table, Table):
         raise ParameterError(f"sample_posterior: table must be a matfit.Table, got {type(table).__name__}")
-    get_family(model)
-    check_loss(loss, None)
+    if isinstance(tied, str):
+        tied = (tied,)
+    problem = Problem.of(model, table.n_channels, fixed, tied, loss)
     if noise not in NOISE_MODES:
         raise ParameterError(f"sample_posterior: noise must be one of {list(NOISE_MODES)}, got {noise!r}")
     if noise == "table" and table.sigma is None:
         raise ParameterError("sample_posterior: noise='table' needs a table with sigma (standard deviations); "
                              "use noise='fit' to sample a relative noise scale instead")
-    if isinstance(tied, str):
-        tied = (tied,)
-    par, batched, to_natural, prepare = _compiled(model, table.n_channels, fixed_items(fixed), tuple(tied), loss,
-                                                  noise)
+    par, batched, to_natural, prepare = _compiled(problem, noise)
     pmask, pmean, psd, pdesc = _prior_arrays(prior, par)
     weight = table.effective_weight()
     n_res = int(np.count_nonzero(weight > 0))

@@ -29,7 +29,8 @@ from ..errors import ParameterError
 from ..table import Table
 from .fit import FitError, fit, initial_guess
 from .losses import residuals
-from .params import Parametrization, get_family
+from ._problem import Problem
+from .params import get_family
 
 __all__ = ["compare_models", "ModelComparison", "recommend", "robust_fit", "information_criteria", "DEFAULT_TOL"]
 
@@ -170,7 +171,8 @@ def robust_fit(table, model, init=None, fixed=None, tied=(), **fit_kwargs):
     """
     if not isinstance(table, Table):
         raise ParameterError(f"robust_fit: table must be a matfit.Table, got {type(table).__name__}")
-    par = Parametrization(model, table.n_channels, fixed, tied)
+    par = Problem.of(model, table.n_channels, fixed, tied, fit_kwargs.get("loss"), fit_kwargs.get("robust"),
+                     fit_kwargs.get("robust_scale", 1.0)).par
     if init is not None:
         par.check_theta("robust_fit: init", init)
     first = dict(init) if init is not None else initial_guess(table, par)

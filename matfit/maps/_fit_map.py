@@ -50,8 +50,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ParameterError
-from ..fitting import REFIT_STARTS, SUSPECT_FACTOR, fit_arrays, get_family, noise_level, refit_line
-from ..fitting.params import Parametrization
+from ..fitting import REFIT_STARTS, SUSPECT_FACTOR, Problem, fit_arrays, get_family, noise_level, refit_line
 from ..parallel import pad_to_power_of_two
 
 #: First-pass starts per texel of a family with a second lobe (``fit_map``'s ``starts``).
@@ -299,7 +298,7 @@ def fit_map(wo, wi, values, model="diffuse_specular", mask=None, sigma=None, *, 
         raise ParameterError(f"fit_map: chunk must be an integer >= 1, got {chunk!r}")
     if not (isinstance(smooth, (int, float)) and math.isfinite(smooth) and smooth >= 0):
         raise ParameterError(f"fit_map: smooth must be a finite number >= 0, got {smooth!r}")
-    par = Parametrization(model, C, fixed, tied)
+    par = Problem.of(model, C, fixed, tied).par  # the loss is chosen per chunk below; the parametrization is the same
     family = par.family.name
     if starts is None:
         starts = LOBE_STARTS if any(p.name == "ratio_2" for p in par.family.params) else 1
