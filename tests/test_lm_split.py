@@ -117,10 +117,10 @@ def test_split_solver_reaches_interleaved_solution(x64):
     z0 = jnp.asarray(par.z_from_theta(initial_guess(t, par)))[None]
     out = {}
     for split in (False, True):
-        _, run, _, _ = compiled_solver(Problem.of("conductor", 3, loss="e2"), "lm_fd", 128, 1e-10, 1e-12, split)
-        z, obj, steps, ok = run(z0, arrays)
-        assert bool(ok[0])
-        out[split] = float(obj[0])
+        solve, _ = compiled_solver(Problem.of("conductor", 3, loss="e2"), "lm_fd", 128, 1e-10, 1e-12, split)
+        sol = solve(z0, arrays)
+        assert bool(sol.converged[0])
+        out[split] = float(sol.F[0])
     assert abs(out[True] - out[False]) <= 1e-9 * out[False]
 
 
@@ -134,12 +134,13 @@ def test_step_cap(cap, x64):
     seeds, owner = np.ones((1, 1)), np.ones((1, 1))
     z0 = jnp.array([0.0])
     # Unlimited, the first Gauss-Newton step from z = 0 is (1.2 - 0.5) / sigmoid'(0) = 0.7 / 0.25 = 2.8.
-    z_free = lm_fd(_saturating, z0, None, seeds, owner, max_steps=1, max_step=np.inf, tau=1e-12)[0]
+    z_free = lm_fd(_saturating, z0, None, seeds, owner, max_steps=1, max_step=np.inf, tau=1e-12).z
     assert float(z_free[0]) == pytest.approx(2.8, rel=1e-6)
-    z1 = lm_fd(_saturating, z0, None, seeds, owner, max_steps=1, max_step=cap, tau=1e-12)[0]
+    z1 = lm_fd(_saturating, z0, None, seeds, owner, max_steps=1, max_step=cap, tau=1e-12).z
     assert float(z1[0]) == pytest.approx(min(cap, 2.8), rel=1e-6)
     # Many capped steps still make progress towards the bound, at most `cap` per step.
-    z5, F5, steps = lm_fd(_saturating, z0, None, seeds, owner, max_steps=5, max_step=cap)[:3]
+    res = lm_fd(_saturating, z0, None, seeds, owner, max_steps=5, max_step=cap)
+    z5, steps = res.z, res.steps
     assert 0 < float(z5[0]) <= 5 * cap + 1e-9 and int(steps) == 5
 
 
@@ -154,7 +155,7 @@ def test_capped_coordinate_does_not_freeze_the_others(x64):
     2 * 3 / 80 = 0.07 instead of 2)."""
     seeds, owner = np.eye(2), np.ones((1, 2))
     z1 = lm_fd(_saturated_and_linear, jnp.array([6.0, 0.0]), None, seeds, owner, max_steps=1, max_step=3.0,
-               tau=1e-12)[0]
+               tau=1e-12).z
     assert float(z1[0]) == pytest.approx(9.0, rel=1e-9)
     assert float(z1[1]) == pytest.approx(2.0, rel=1e-5)
 
@@ -176,14 +177,15 @@ def test_float32_fit_stops_at_its_rounding_floor(x64):
     for dt in (jnp.float32, jnp.float64):
         args = (jnp.asarray(x, dt), jnp.asarray(y, dt))
         out[dt] = lm_fd(_exp_decay, jnp.array([1.0, 0.5], dt), args, seeds, owner, max_steps=100, max_reject=12)
-    z, F, steps, ok, _, evals = out[jnp.float32][:6]
+    res = out[jnp.float32]
+    z, F, steps, ok, evals = res.z, res.F, res.steps, res.converged, res.evals
     per_jac = 2 * 2  # central differences in float32, two groups
     rejected = int(evals) - (1 + per_jac) - int(steps) * (1 + per_jac)
     assert bool(ok) and int(steps) < 100
     assert rejected <= 1, f"{rejected} rejected trial steps"
-    F64 = float(out[jnp.float64][1])
+    F64 = float(out[jnp.float64].F)
     assert abs(float(F) - F64) <= 1e-5 * F64
-    np.testing.assert_allclose(np.asarray(z), np.asarray(out[jnp.float64][0]), rtol=1e-3)
+    np.testing.assert_allclose(np.asarray(z), np.asarray(out[jnp.float64].z), rtol=1e-3)
 
 
 @pytest.mark.parametrize("dt", [jnp.float32, jnp.float64])

@@ -64,12 +64,12 @@ def loss_history(table, family, loss="l2", method="lm", starts=4, seed=0, max_st
     # the starts fit() runs (init replaces entries of the data-driven guess of start 0)
     z0s = fit_starts(table, par, starts, seed, jax.jit(problem.objective), arrays, init)
     prepared = prepare(arrays)
-    solver = METHODS[method].build(rtol, atol)
+    solver = METHODS[method].build(rtol, atol, max_steps)
     record = []
 
     @jax.jit
     def solve(z0, args):
-        return solver.trace(lambda z, a: fn_nc(z, a).reshape(-1), z0, args, int(max_steps),
+        return solver.trace(lambda z, a: fn_nc(z, a).reshape(-1), z0, args,
                             lambda n, v: record.append((n, v)))
 
     out = []

@@ -80,9 +80,14 @@ class Problem:
         """
         loss = "l2" if loss is None else loss
         check_loss(loss, robust)
-        problem = _interned(cls(str(family), int(channels), fixed_items(fixed), tuple(tied), loss, robust,
-                                float(robust_scale)))
-        problem.par  # noqa: B018  (builds and checks the parametrization: unknown names raise here)
+        try:
+            problem = _interned(cls(str(family), int(channels), fixed_items(fixed), tuple(tied), loss, robust,
+                                    float(robust_scale)))
+            problem.par  # noqa: B018  (builds and checks the parametrization: unknown names raise here)
+        except (TypeError, ValueError):
+            # the error names the caller's own values (not their canonical form)
+            Parametrization(family, channels, fixed, tied)
+            raise
         return problem
 
     @functools.cached_property

@@ -299,14 +299,14 @@ def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust
     if model is None:  # matfit.fitting.fit (in _choose) chooses the family; this one fits a named one
         raise ParameterError("fit: name the family (model=...), or call matfit.fitting.fit to choose it")
     loss = "l2" if loss is None else loss
-    get_method(method, "fit", model, loss)
+    get_method(method, "fit")
     check_solver_options("fit", starts=starts, max_steps=max_steps, rtol=rtol, atol=atol, robust_scale=robust_scale,
                          dtype=dtype)
     C = table.n_channels
     problem = Problem.of(model, C, fixed, tied, loss, robust, robust_scale)
     problem.par.check_theta("fit: init", {} if init is None else init)
-    par, _, run_full, objective = solvers.compiled_solver(problem, method, int(max_steps), float(rtol), float(atol),
-                                                          device_count() == 1)
+    par = problem.par
+    solve, objective = solvers.compiled_solver(problem, method, int(max_steps), float(rtol), float(atol), device_count() == 1)
     w_eff = table.effective_weight()
     n_res = int(np.count_nonzero(w_eff))
     if n_res <= par.size:
@@ -321,19 +321,19 @@ def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust
     screen = solvers.coarse_rows(rows) if METHODS[method].solver.normal_equations else None
     z0s = fit_starts(table, par, starts, seed, objective, rows if screen is None else screen, init)
     # the best start's residuals and J^T J come with the solution (Gauss-Newton covariance below)
-    z, obj, steps, ok, best, r_best, A, sub = run_full(z0s, rows)
-    obj = np.asarray(obj)
+    sol = solve(z0s, rows)
+    obj = np.asarray(sol.F)
     known = table.sigma is not None and loss == "l2" and robust is None
     chi2 = 2 * float(np.nanmin(obj)) / max(n_res - par.size, 1)
     line = float(refit_line(n_res - par.size))
     info = []
     rho = float("nan")
-    if not known and sub is None and C > 1 and chi2 > 0:
-        rb = np.asarray(r_best)[:n_rows]
+    if not known and sol.sub is None and C > 1 and chi2 > 0:
+        rb = np.asarray(sol.r)[:n_rows]
         # an exact fit's residuals are rounding error, whose pattern says nothing
         if np.sqrt(np.mean(np.square(rb, dtype=float))) > EXACT_FIT * float(np.sqrt(np.mean(np.square(np.asarray(arrays[2]), dtype=float)))):
             rho = channel_correlation(rb.reshape(-1, C))
-    if sub is None and ((known and not chi2 <= line) or rho > CHANNEL_RHO_REFIT):
+    if sol.sub is None and ((known and not chi2 <= line) or rho > CHANNEL_RHO_REFIT):
         # with the table's own sigma the end is judged against the noise: far above it, a false
         # minimum is likely; without it, residuals that move together across the channels (a
         # shape the fit missed, not independent noise) say the same. More starts (other seeds)
@@ -342,29 +342,30 @@ def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust
         # without sigma as many starts again (the program compiled for them): a measured table
         # that no family describes to its noise correlates too, and pays only a second solve
         n2 = max(REFIT_STARTS, 2 * starts) if known else starts
-        again = run_full(fit_starts(table, par, n2, seed + 1, objective, rows if screen is None else screen, init), rows)
-        obj2 = np.asarray(again[1])
+        again = solve(fit_starts(table, par, n2, seed + 1, objective, rows if screen is None else screen, init), rows)
+        obj2 = np.asarray(again.F)
         kept = bool(np.nanmin(obj2) < np.nanmin(obj))
         if kept:
-            z, obj, steps, ok, best, r_best, A, sub = again
-            obj = obj2
+            sol, obj = again, obj2
         why = (f"the first end's reduced chi-square {chi2:.4g} was above {line:.4g} (the noise's line for the "
                "table's sigma)" if known else
                f"the first end's residuals moved together across the colour channels (mean correlation {rho:.3g} "
                f"> {CHANNEL_RHO_REFIT:g}; independent noise leaves them uncorrelated)")
         info.append(f"{why}: refitted from {n2} more start{'s' if n2 > 1 else ''}, " + ("a lower end found" if kept else "no lower end found"))
-    good = np.isfinite(obj) & np.all(np.isfinite(np.asarray(z)), axis=1)
+    z, sub = np.asarray(sol.z), sol.sub
+    good = np.isfinite(obj) & np.all(np.isfinite(z), axis=1)
     if not good.any():
         raise FitError("fit: every start ended with non-finite parameters or objective")
-    best = int(best)
+    best = int(sol.best)
     zb = z[best]
+    steps, ok = np.asarray(sol.steps), np.asarray(sol.converged)
     # Uncertainty: Gauss-Newton covariance in the natural parameters (chain rule through the
     # element-wise transform), scaled by the residual variance unless the table carries sigma.
-    r_best = np.asarray(r_best)[:n_rows]
+    r_best = np.asarray(sol.r)[:n_rows]
     post = compiled_helpers(par)["post"](zb, z, zb if sub is None else sub[1])
     dtheta = np.asarray(post["dtheta"])
     inv_d = 1 / np.where(dtheta != 0, dtheta, np.inf)
-    At = np.asarray(A, float) * np.outer(inv_d, inv_d)  # J^T J in the natural parameters
+    At = np.asarray(sol.A, float) * np.outer(inv_d, inv_d)  # J^T J in the natural parameters
     rss = float(2 * obj[best])
     dof = n_res - par.size
     jac = None
@@ -390,7 +391,7 @@ def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust
                     f"{starts} start(s); the whole table from the best of them")
     notes, unident = diagnose(
         labels=par.labels, values=values, stderr=se, lower=lower, upper=upper, gram=At, residuals=r_best,
-        converged=bool(np.asarray(ok)[best]), steps=int(np.asarray(steps)[best]), max_steps=int(max_steps),
+        converged=bool(ok[best]), steps=int(steps[best]), max_steps=int(max_steps),
         known_sigma=known, dof=n_res - par.size,
         data_scale=data_scale, best=best, scale=_value_scale(arrays, loss, robust),
         physical=par.physical_bounds(), fit_var=fit_var, **start_kw)
@@ -405,8 +406,8 @@ def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust
         family=model, method=method, loss=loss,
         params={k: np.asarray(v) for k, v in theta.items()},
         labels=par.labels, values=values, stderr=se, cov=cov, corr=corr,
-        objective=float(obj[best]), rss=rss, n_residuals=n_res, dof=dof, steps=int(np.asarray(steps)[best]),
-        converged=bool(np.asarray(ok)[best]), wall_time=time.perf_counter() - t0, start_objectives=obj,
+        objective=float(obj[best]), rss=rss, n_residuals=n_res, dof=dof, steps=int(steps[best]),
+        converged=bool(ok[best]), wall_time=time.perf_counter() - t0, start_objectives=obj,
         model=post["model"], z=np.asarray(zb), warnings=notes, info=info,
         reduces_to=None if reduced is None else reduced[0],
     )
@@ -422,7 +423,7 @@ def fit_batch(tables, model="plastic", method=DEFAULT_METHOD, loss="l2", fixed=N
     tables : sequence of matfit.Table
         Tables of one shape (rows and channels).
     model, method, loss, fixed, tied, starts, max_steps, rtol, atol, dtype
-        As for :func:`fit` (``method`` must be a batched one, :attr:`Method.batched`).
+        As for :func:`fit`.
 
     Returns
     -------
@@ -451,9 +452,7 @@ def fit_batch(tables, model="plastic", method=DEFAULT_METHOD, loss="l2", fixed=N
     for i, t in enumerate(tables):
         if not isinstance(t, Table):
             raise ParameterError(f"fit_batch: table {i} must be a matfit.Table, got {type(t).__name__}")
-    if not get_method(method, "fit_batch", model, loss).batched:
-        raise ParameterError(f"fit_batch: method {method!r} cannot fit tables in a batch; use one of "
-                             f"{[k for k, v in METHODS.items() if v.batched]}")
+    get_method(method, "fit_batch")
     check_solver_options("fit_batch", starts=starts, max_steps=max_steps, rtol=rtol, atol=atol, dtype=dtype)
     t0 = tables[0]
     Problem.of(model, t0.n_channels, fixed, tied, loss)  # checked before the tables are stacked
@@ -509,13 +508,13 @@ _weighted_rms = jax.jit(lambda v, w: jnp.sqrt(jnp.mean(w * v * v)))
 
 
 @functools.lru_cache(maxsize=16)
-def _batch_programs(run_full, par, shared):
-    """Jitted ``vmap`` over tables of the data-driven guesses' map to ``z``, of a solver's
-    ``run_full`` (directions shared or per table) and of the natural values with the diagonal of
-    their Jacobian in ``z``."""
+def _batch_programs(solve, par, shared):
+    """Jitted ``vmap`` over tables of the data-driven guesses' map to ``z``, of a compiled
+    solver's ``solve`` (directions shared or per table) and of the natural values with the
+    diagonal of their Jacobian in ``z``."""
     d_ax = None if shared else 0
     to_z = jax.jit(jax.vmap(par.z_from_theta))
-    run = loop_jit(jax.vmap(run_full, in_axes=(0, (d_ax, d_ax, 0, 0))))
+    run = loop_jit(jax.vmap(solve, in_axes=(0, (d_ax, d_ax, 0, 0))))
     post = jax.jit(jax.vmap(lambda z: (par.theta_vector(z), jnp.diag(jax.jacfwd(par.theta_vector)(z)))))
     return to_z, run, post
 
@@ -581,10 +580,9 @@ def fit_arrays(wo, wi, values, weight=None, *, model="plastic", method=DEFAULT_M
     B, N, C = values.shape
     problem = Problem.of(model, C, fixed, tied, loss)
     check_solver_options(where, starts=starts, max_steps=max_steps, rtol=rtol, atol=atol, dtype=dtype)
-    if not get_method(method, where, model, loss).batched:
-        raise ParameterError(f"{where}: method {method!r} cannot fit tables in a batch; use one of "
-                             f"{[k for k, v in METHODS.items() if v.batched]}")
-    par, _, run_full, objective = solvers.compiled_solver(problem, method, int(max_steps), float(rtol), float(atol))
+    get_method(method, where)
+    par = problem.par
+    solve, objective = solvers.compiled_solver(problem, method, int(max_steps), float(rtol), float(atol))
     check_memory(where, B * N, C, len(problem.groups[0]) * starts, dtype)
     dt = dtype if dtype is not None else jnp.result_type(float)
     if np.dtype(dt) == np.float64 and not jax.config.jax_enable_x64:
@@ -598,7 +596,7 @@ def fit_arrays(wo, wi, values, weight=None, *, model="plastic", method=DEFAULT_M
     WO = np.broadcast_to(wo, (B, N, 3)) if wo.ndim == 2 else wo
     WI = np.broadcast_to(wi, (B, N, 3)) if wi.ndim == 2 else wi
     guess = guesses_from_arrays(WO, WI, values, ok_rows, par, one=B == 1)
-    to_z, run, post = _batch_programs(run_full, par, shared)
+    to_z, run, post = _batch_programs(solve, par, shared)
     dirs = (jnp.asarray(wo, dt), jnp.asarray(wi, dt)) if shared else (jnp.asarray(WO, dt), jnp.asarray(WI, dt))
     arrays = dirs + (jnp.asarray(values, dt), jnp.asarray(w, dt))
     base = np.asarray(to_z({k: jnp.asarray(v, float) for k, v in guess.items()})).astype(np.dtype(dt))
@@ -645,10 +643,10 @@ def fit_arrays(wo, wi, values, weight=None, *, model="plastic", method=DEFAULT_M
 def _solve_stack(run, z0, arrays):
     """Solve every table from its starts ``z0`` (B, n, p); each table's best end as numpy arrays
     ``(z (B, p), objective, steps, converged, J^T J)``."""
-    z, obj, steps, ok, best, _, A, _ = run(z0, arrays)
-    best = np.asarray(best)
+    sol = run(z0, arrays)
+    best = np.asarray(sol.best)
     pick = lambda a: np.take_along_axis(np.asarray(a), best.reshape((-1,) + (1,) * (np.ndim(a) - 1)), axis=1)[:, 0]  # noqa: E731
-    return pick(z), pick(obj), pick(steps), pick(ok), np.asarray(A)
+    return pick(sol.z), pick(sol.F), pick(sol.steps), pick(sol.converged), np.asarray(sol.A)
 
 
 def _init_z(par, to_z, init, base):

@@ -112,7 +112,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["column_groups", "jacobian", "lm_fd", "LMResult", "normal_equations", "GRAM_BLOCK", "half_sq", "LevenbergMarquardtFD",
+__all__ = ["column_groups", "jacobian", "lm_fd", "Solution", "normal_equations", "GRAM_BLOCK", "half_sq", "LevenbergMarquardtFD",
            "GroupedDifferences", "BoxedDampedStep", "NielsenDamping", "StepTermination", "widen"]
 
 #: Column block of the channel-split Gram reductions; channel-split residuals padded to a
@@ -513,51 +513,59 @@ def _secant_update(s, step, g_new, F_new, accepted):
     return jnp.where(ok, S, s.S), aug
 
 
-class LMResult(NamedTuple):
-    """What :func:`lm_fd` returns.
+class Solution(NamedTuple):
+    """What a solver returns (:func:`lm_fd`, every :class:`~matfit.fitting.methods.AbstractSolver`,
+    and a fit's compiled multi-start program). Fields a solver does not compute are None.
 
     Attributes
     ----------
     z : jax.Array (p,)
         The solution.
-    F : jax.Array
-        ``0.5 |r|^2`` there.
     steps : jax.Array
         Accepted steps.
     converged : jax.Array of bool
         Whether a stopping test (not ``max_steps``) ended the loop.
+    F : jax.Array
+        ``0.5 |r|^2`` there.
     A : jax.Array (p, p)
         ``J^T J`` at ``z`` (for covariances).
     evals : jax.Array
         Model evaluations.
     r : jax.Array or tuple
-        The residuals at ``z``, in ``fn``'s layout.
+        The residuals at ``z``, in ``fn``'s layout (flat in a multi-start solution).
     mu : jax.Array
         The damping at the end.
     S : jax.Array (p, p)
         The secant model of the second-order term (zeros without ``secant``).
     aug : jax.Array of bool
         Whether the next step would have used ``J^T J + S``.
+    best : jax.Array
+        A multi-start solution's lowest end: ``z``, ``steps``, ``converged`` and ``F`` are per
+        start (leading axis), ``r`` and ``A`` are the best start's.
+    sub : tuple or None
+        A multi-start solution of a large table: ``(F, z)`` of the starts on its subset.
 
     Examples
     --------
     >>> import numpy as np, jax.numpy as jnp
     >>> from matfit.fitting.lm import lm_fd
     >>> res = lm_fd(lambda z, a: (z - a)[None, :], jnp.zeros(1), jnp.ones(1), np.eye(1), np.ones((1, 1)))
-    >>> res._fields, float(res.F) < 1e-12
-    (('z', 'F', 'steps', 'converged', 'A', 'evals', 'r', 'mu', 'S', 'aug'), True)
+    >>> float(res.F) < 1e-12, bool(res.converged), res.best is None
+    (True, True, True)
     """
 
     z: jax.Array
-    F: jax.Array
     steps: jax.Array
     converged: jax.Array
-    A: jax.Array
-    evals: jax.Array
-    r: object
-    mu: jax.Array
-    S: jax.Array
-    aug: jax.Array
+    F: Optional[jax.Array] = None
+    A: Optional[jax.Array] = None
+    evals: Optional[jax.Array] = None
+    r: object = None
+    mu: Optional[jax.Array] = None
+    S: Optional[jax.Array] = None
+    aug: Optional[jax.Array] = None
+    best: Optional[jax.Array] = None
+    sub: Optional[tuple] = None
 
 
 class GroupedDifferences(eqx.Module):
@@ -722,7 +730,7 @@ class LevenbergMarquardtFD(eqx.Module):
     extrapolate: bool = eqx.field(default=False, static=True)
     secant: bool = eqx.field(default=False, static=True)
 
-    def minimise(self, fn, z0, args, seeds, owner, max_steps=100, wide=False, warm=None) -> LMResult:
+    def minimise(self, fn, z0, args, seeds, owner, max_steps=100, wide=False, warm=None) -> Solution:
         """Minimize ``0.5 |fn(z, args)|^2`` from ``z0`` (the arguments as for :func:`lm_fd`)."""
         z0 = jnp.asarray(z0)
         dt = z0.dtype
@@ -788,11 +796,11 @@ class LevenbergMarquardtFD(eqx.Module):
                           s.evals + 1 + acc * per_jac, stop, stop, rejects, D, S, aug, jnp.asarray(False))
 
         s = jax.lax.while_loop(cond, body, s)
-        return LMResult(s.z, s.F, s.steps, s.ok, s.A, s.evals, s.r, s.mu, s.S, s.aug)
+        return Solution(s.z, s.steps, s.ok, F=s.F, A=s.A, evals=s.evals, r=s.r, mu=s.mu, S=s.S, aug=s.aug)
 
 
 def lm_fd(fn, z0, args, seeds, owner, max_steps=100, rtol=1e-8, atol=1e-10, central=None, max_reject=12,
-          tau=1e-3, max_step=3.0, wide=False, extrapolate=False, secant=False, warm=None) -> LMResult:
+          tau=1e-3, max_step=3.0, wide=False, extrapolate=False, secant=False, warm=None) -> Solution:
     """Minimize ``0.5 |fn(z, args)|^2`` from ``z0`` with a :class:`LevenbergMarquardtFD` built from
     these options (the algorithm: the module docstring). This is where the solver's options are
     described; its parts and ``method="lm_fd"`` refer here.
@@ -832,14 +840,14 @@ def lm_fd(fn, z0, args, seeds, owner, max_steps=100, rtol=1e-8, atol=1e-10, cent
         ``J^T J + S`` while that model predicts the decreases better (NL2SOL): superlinear instead
         of linear convergence on a large-residual problem. For single large fits (a small symmetric
         eigenvalue problem per iteration checks that the damped model is definite).
-    warm : LMResult, optional
+    warm : Solution, optional
         A solution of the same problem on a subset of its rows (``fit``'s subset starts): its
         damping, and its secant model scaled by the ratio of the two ``J^T J`` traces, start this
         solve instead of ``tau`` and ``S = 0``.
 
     Returns
     -------
-    LMResult
+    Solution
 
     Examples
     --------

@@ -1,18 +1,18 @@
 r"""The registry of least-squares methods: one place that ``fit``, ``fit_batch``, the CLI's
 ``--method`` choices and the docs read.
 
-Each :class:`Method` names its solver, the library it comes from, the families and losses it
-serves (``None``: all of them) and whether batched fits (:func:`~matfit.fitting.fit_batch`) can
-use it. :data:`DEFAULT_METHOD` is the fastest correct one, ``"lm_fd"``: Levenberg-Marquardt on
+Each :class:`Method` names its solver and the library it comes from; every method serves every
+family and loss, single and batched fits. :data:`DEFAULT_METHOD` is the fastest correct one, ``"lm_fd"``: Levenberg-Marquardt on
 the normal equations with a grouped finite-difference Jacobian (:mod:`matfit.fitting.lm`). It
 streams ``J^T J`` and ``J^T r`` through the model's evaluations and never materializes the
 ``N x p`` Jacobian that the optimistix and jaxopt solvers build (which, for a full MERL table,
 needs gigabytes). The others stay for comparison and for problems where an exact Jacobian or a
 quasi-Newton method is wanted.
 
-Every method builds a solver (:class:`AbstractSolver`, an equinox module) from the tolerances,
-``Method.build(rtol, atol)``. A solver declares what it needs and gives (``residuals``,
-``normal_equations``, ``traces``) and solves with one signature, :meth:`AbstractSolver.solve`.
+Every method builds a solver (:class:`AbstractSolver`, an equinox module) whose options are its
+fields, ``Method.build(rtol, atol, max_steps)``. A solver declares what it needs and gives
+(``residuals``, ``normal_equations``, ``traces``) and solves with one signature,
+:meth:`AbstractSolver.solve`, returning a :class:`~matfit.fitting.lm.Solution`.
 What fits do with a solver depends on those declarations, never on the method's name.
 
 Examples
@@ -20,7 +20,7 @@ Examples
 >>> from matfit.fitting import METHODS, DEFAULT_METHOD
 >>> DEFAULT_METHOD, METHODS[DEFAULT_METHOD].backend
 ('lm_fd', 'matfit')
->>> sorted(m for m in METHODS if METHODS[m].batched)[:3]
+>>> sorted(METHODS)[:3]
 ['bfgs', 'dogleg', 'gn']
 """
 
@@ -28,44 +28,17 @@ from __future__ import annotations
 
 import abc
 from dataclasses import dataclass, field
-from typing import ClassVar, NamedTuple, Optional
+from typing import ClassVar
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 
 from ..errors import ParameterError
-from .lm import LMResult, lm_fd
+from .lm import Solution, lm_fd
 
 __all__ = ["Method", "METHODS", "DEFAULT_METHOD", "get_method", "AbstractSolver", "Solution", "LMFDSolver",
            "OptimistixLeastSquares", "OptimistixBFGS", "JaxoptLBFGS", "JaxoptLM"]
-
-
-class Solution(NamedTuple):
-    """What :meth:`AbstractSolver.solve` returns.
-
-    Attributes
-    ----------
-    z : jax.Array (p,)
-        The solution.
-    steps : jax.Array
-        The number of steps.
-    converged : jax.Array of bool
-        Whether a stopping test ended the loop.
-    lm : LMResult or None
-        The :class:`~matfit.fitting.lm.LMResult` of solvers that stream the normal equations.
-
-    Examples
-    --------
-    >>> from matfit.fitting.methods import Solution
-    >>> Solution(z=[0.0], steps=3, converged=True).lm is None
-    True
-    """
-
-    z: object
-    steps: object
-    converged: object
-    lm: Optional[LMResult] = None
 
 
 def _objective(fn):
@@ -103,22 +76,21 @@ class AbstractSolver(eqx.Module):
 
     rtol: float = eqx.field(static=True)
     atol: float = eqx.field(static=True)
+    max_steps: int = eqx.field(default=256, static=True)
     residuals: ClassVar[str] = "flat"
     normal_equations: ClassVar[bool] = False
     traces: ClassVar[bool] = False
 
     @abc.abstractmethod
-    def solve(self, fn, z0, args, max_steps, groups=None, wide=False, large_residual=False, warm=None) -> Solution:
+    def solve(self, fn, z0, args, groups=None, warm=None) -> Solution:
         """Minimize ``0.5 |fn(z, args)|^2`` from ``z0`` in at most ``max_steps`` steps.
 
         ``fn(z, args)`` gives the residuals in the layout of ``residuals``; ``groups`` is the
-        ``(seeds, owner)`` of :func:`~matfit.fitting.lm.column_groups`. ``wide`` and ``warm`` are
-        ``lm_fd``'s options (:func:`~matfit.fitting.lm.lm_fd`); ``large_residual`` (one large fit
-        solved alone, not under ``vmap``) turns on its ``extrapolate`` and ``secant``. Other solvers
-        ignore all three.
+        ``(seeds, owner)`` of :func:`~matfit.fitting.lm.column_groups` and ``warm`` a subset's
+        :class:`~matfit.fitting.lm.Solution` (``lm_fd``'s; others ignore both).
         """
 
-    def trace(self, fn, z0, args, max_steps, record) -> jax.Array:
+    def trace(self, fn, z0, args, record) -> jax.Array:
         """Solve flat residuals as :meth:`solve` does, calling ``record(step, objective)`` from the
         compiled loop at every step (the objective at the last accepted iterate); returns the final
         objective.
@@ -139,19 +111,20 @@ class LMFDSolver(AbstractSolver):
     --------
     >>> import numpy as np, jax.numpy as jnp
     >>> from matfit.fitting.methods import LMFDSolver
-    >>> sol = LMFDSolver(1e-8, 1e-10).solve(lambda z, a: (z - a)[None, :], jnp.zeros(2), jnp.ones(2), 50,
+    >>> sol = LMFDSolver(1e-8, 1e-10, 50).solve(lambda z, a: (z - a)[None, :], jnp.zeros(2), jnp.ones(2),
     ...                                     (np.eye(2), np.ones((1, 2))))
     >>> [round(float(v), 6) for v in sol.z], bool(sol.converged)
     ([1.0, 1.0], True)
     """
 
+    wide: bool = eqx.field(default=False, static=True)
+    large_residual: bool = eqx.field(default=False, static=True)
     residuals: ClassVar[str] = "channels"
     normal_equations: ClassVar[bool] = True
 
-    def solve(self, fn, z0, args, max_steps, groups=None, wide=False, large_residual=False, warm=None) -> Solution:
-        res = lm_fd(fn, z0, args, *groups, max_steps=max_steps, rtol=self.rtol, atol=self.atol, wide=wide,
-                    extrapolate=large_residual, secant=large_residual, warm=warm)
-        return Solution(res.z, res.steps, res.converged, res)
+    def solve(self, fn, z0, args, groups=None, warm=None) -> Solution:
+        return lm_fd(fn, z0, args, *groups, max_steps=self.max_steps, rtol=self.rtol, atol=self.atol, wide=self.wide,
+                     extrapolate=self.large_residual, secant=self.large_residual, warm=warm)
 
 
 _OPTX_LS = {"lm": "LevenbergMarquardt", "gn": "GaussNewton", "dogleg": "Dogleg"}
@@ -171,7 +144,7 @@ class OptimistixLeastSquares(AbstractSolver):
     --------
     >>> import jax.numpy as jnp
     >>> from matfit.fitting.methods import OptimistixLeastSquares
-    >>> sol = OptimistixLeastSquares(1e-8, 1e-10, "dogleg").solve(lambda z, a: z - a, jnp.zeros(1), jnp.ones(1), 50)
+    >>> sol = OptimistixLeastSquares(1e-8, 1e-10, 50, "dogleg").solve(lambda z, a: z - a, jnp.zeros(1), jnp.ones(1))
     >>> round(float(sol.z[0]), 6)
     1.0
     """
@@ -184,13 +157,13 @@ class OptimistixLeastSquares(AbstractSolver):
 
         return getattr(optx, _OPTX_LS[self.kind])(rtol=self.rtol, atol=self.atol, **kw)
 
-    def solve(self, fn, z0, args, max_steps, groups=None, wide=False, large_residual=False, warm=None) -> Solution:
+    def solve(self, fn, z0, args, groups=None, warm=None) -> Solution:
         import optimistix as optx
 
-        sol = optx.least_squares(fn, self._solver(), z0, args=args, max_steps=max_steps, throw=False)
+        sol = optx.least_squares(fn, self._solver(), z0, args=args, max_steps=self.max_steps, throw=False)
         return Solution(sol.value, sol.stats["num_steps"], sol.result == optx.RESULTS.successful)
 
-    def trace(self, fn, z0, args, max_steps, record) -> jax.Array:
+    def trace(self, fn, z0, args, record) -> jax.Array:
         import optimistix as optx
 
         def verbose(**kw):
@@ -198,7 +171,7 @@ class OptimistixLeastSquares(AbstractSolver):
             jax.debug.callback(lambda n, v: record(int(n), float(v)), kw["num_steps"][1],
                                kw["loss_last_accepted_step"][1])
 
-        sol = optx.least_squares(fn, self._solver(verbose=verbose), z0, args=args, max_steps=max_steps, throw=False)
+        sol = optx.least_squares(fn, self._solver(verbose=verbose), z0, args=args, max_steps=self.max_steps, throw=False)
         r = fn(sol.value, args)
         return 0.5 * jnp.sum(r * r)
 
@@ -215,15 +188,15 @@ class OptimistixBFGS(AbstractSolver):
     --------
     >>> import jax.numpy as jnp
     >>> from matfit.fitting.methods import OptimistixBFGS
-    >>> round(float(OptimistixBFGS(1e-8, 1e-10).solve(lambda z, a: z - a, jnp.zeros(1), jnp.ones(1), 50).z[0]), 5)
+    >>> round(float(OptimistixBFGS(1e-8, 1e-10, 50).solve(lambda z, a: z - a, jnp.zeros(1), jnp.ones(1)).z[0]), 5)
     1.0
     """
 
-    def solve(self, fn, z0, args, max_steps, groups=None, wide=False, large_residual=False, warm=None) -> Solution:
+    def solve(self, fn, z0, args, groups=None, warm=None) -> Solution:
         import optimistix as optx
 
         sol = optx.minimise(_objective(fn), optx.BFGS(rtol=self.rtol, atol=self.atol), z0, args=args,
-                            max_steps=max_steps, throw=False)
+                            max_steps=self.max_steps, throw=False)
         return Solution(sol.value, sol.stats["num_steps"], sol.result == optx.RESULTS.successful)
 
 
@@ -239,38 +212,44 @@ class JaxoptLBFGS(AbstractSolver):
     --------
     >>> import jax.numpy as jnp
     >>> from matfit.fitting.methods import JaxoptLBFGS
-    >>> round(float(JaxoptLBFGS(1e-8, 1e-10).solve(lambda z, a: z - a, jnp.zeros(1), jnp.ones(1), 50).z[0]), 5)
+    >>> round(float(JaxoptLBFGS(1e-8, 1e-10, 50).solve(lambda z, a: z - a, jnp.zeros(1), jnp.ones(1)).z[0]), 5)
     1.0
     """
 
-    def solve(self, fn, z0, args, max_steps, groups=None, wide=False, large_residual=False, warm=None) -> Solution:
+    def solve(self, fn, z0, args, groups=None, warm=None) -> Solution:
         import jaxopt
 
-        res = jaxopt.LBFGS(fun=_objective(fn), maxiter=max_steps, tol=self.atol).run(z0, args)
+        res = jaxopt.LBFGS(fun=_objective(fn), maxiter=self.max_steps, tol=self.atol).run(z0, args)
         return Solution(res.params, res.state.iter_num, res.state.error <= self.atol)
 
 
 class JaxoptLM(AbstractSolver):
-    """jaxopt Levenberg-Marquardt (its ``xtol`` is ``rtol``, ``gtol`` is ``atol``).
+    """jaxopt Levenberg-Marquardt, stopped by Madsen and Nielsen's tests: a step shorter than
+    ``rtol`` relative to ``z`` (jaxopt's ``xtol``) or a gradient's largest entry below ``atol``
+    (``gtol``). Converged when a test ended the loop before ``max_steps`` (jaxopt's default test,
+    a gradient norm below its own ``tol`` of 1e-3, would ignore both tolerances).
 
     Parameters
     ----------
     rtol, atol : float
         Stopping tolerances.
+    max_steps : int
+        Most iterations.
 
     Examples
     --------
     >>> import jax.numpy as jnp
     >>> from matfit.fitting.methods import JaxoptLM
-    >>> round(float(JaxoptLM(1e-8, 1e-10).solve(lambda z, a: z - a, jnp.zeros(1), jnp.ones(1), 50).z[0]), 5)
+    >>> round(float(JaxoptLM(1e-8, 1e-10, 50).solve(lambda z, a: z - a, jnp.zeros(1), jnp.ones(1)).z[0]), 5)
     1.0
     """
 
-    def solve(self, fn, z0, args, max_steps, groups=None, wide=False, large_residual=False, warm=None) -> Solution:
+    def solve(self, fn, z0, args, groups=None, warm=None) -> Solution:
         import jaxopt
 
-        res = jaxopt.LevenbergMarquardt(residual_fun=fn, maxiter=max_steps, xtol=self.rtol, gtol=self.atol).run(z0, args)
-        return Solution(res.params, res.state.iter_num, res.state.error <= self.atol)
+        res = jaxopt.LevenbergMarquardt(residual_fun=fn, maxiter=self.max_steps, xtol=self.rtol, gtol=self.atol,
+                                        stop_criterion="madsen-nielsen").run(z0, args)
+        return Solution(res.params, res.state.iter_num, res.state.iter_num < self.max_steps)
 
 
 @dataclass(frozen=True)
@@ -289,16 +268,15 @@ class Method:
         The :class:`AbstractSolver` subclass.
     options : dict
         Keyword arguments of the solver beyond the tolerances.
-    batched : bool
-        Usable by :func:`~matfit.fitting.fit_batch` (under ``vmap``).
-    families, losses : tuple of str or None
-        What it serves (None: every family, every loss).
+
+    Every method serves every family and loss, and batched fits (under ``vmap``):
+    ``tests/test_methods_families.py`` fits two families with each.
 
     Examples
     --------
     >>> from matfit.fitting.methods import get_method
-    >>> get_method("lm").serves("plastic", "e2"), get_method("lm_fd").residuals
-    (True, 'channels')
+    >>> get_method("lm").backend, get_method("lm_fd").residuals
+    ('optimistix', 'channels')
     """
 
     name: str
@@ -306,22 +284,16 @@ class Method:
     description: str
     solver: type
     options: dict = field(default_factory=dict)
-    batched: bool = True
-    families: Optional[tuple] = None
-    losses: Optional[tuple] = None
 
     @property
     def residuals(self) -> str:
         """The residual layout the solver takes (:attr:`AbstractSolver.residuals`)."""
         return self.solver.residuals
 
-    def build(self, rtol, atol) -> AbstractSolver:
-        """The solver with tolerances ``rtol``, ``atol``."""
-        return self.solver(float(rtol), float(atol), **self.options)
-
-    def serves(self, family: str, loss: str) -> bool:
-        """True when the method fits ``family`` under ``loss``."""
-        return (self.families is None or family in self.families) and (self.losses is None or loss in self.losses)
+    def build(self, rtol, atol, max_steps=256, **options) -> AbstractSolver:
+        """The solver with tolerances ``rtol``, ``atol``, at most ``max_steps`` steps and its
+        ``options`` (``lm_fd``'s ``wide``, ``large_residual``; other solvers take none)."""
+        return self.solver(float(rtol), float(atol), int(max_steps), **self.options, **options)
 
 
 #: The methods, the default first.
@@ -343,7 +315,7 @@ METHODS = {
 DEFAULT_METHOD = "lm_fd"
 
 
-def get_method(name, where="fit", family=None, loss=None) -> Method:
+def get_method(name, where="fit") -> Method:
     """The registered :class:`Method` called ``name``.
 
     Parameters
@@ -352,8 +324,6 @@ def get_method(name, where="fit", family=None, loss=None) -> Method:
         A key of :data:`METHODS`.
     where : str, default "fit"
         The caller, named in errors.
-    family, loss : str, optional
-        When both are given, the method must serve them.
 
     Returns
     -------
@@ -362,12 +332,9 @@ def get_method(name, where="fit", family=None, loss=None) -> Method:
     Raises
     ------
     matfit.ParameterError
-        Naming the choices, when there is no such method or it does not serve ``family`` / ``loss``.
+        Naming the choices, when there is no such method.
     """
     m = METHODS.get(name) if isinstance(name, str) else None
     if m is None:
         raise ParameterError(f"{where}: method must be one of {list(METHODS)}, got {name!r}")
-    if family is not None and loss is not None and not m.serves(family, loss):
-        raise ParameterError(f"{where}: method {name!r} does not fit the {family!r} family with loss {loss!r}; "
-                             f"use one of {[k for k, v in METHODS.items() if v.serves(family, loss)]}")
     return m
