@@ -29,8 +29,8 @@ from .geometry import DEFAULT_SPARSE_VIEWS
 
 SCENE_DIR = Path(__file__).with_name("scenes")
 
-MODELS = {n: getattr(_models, n) for n in ("Lambert", "RoughConductor", "RoughDielectric", "SmoothConductor",
-                                            "SmoothDielectric", "Plastic", "Layered", "CoatedConductor", "Blend")}
+#: The models a scene may build: the registry's entries declared for ``"scene"`` (:data:`matfit.models.MODELS`).
+MODELS = _models.models_for("scene")
 #: Parameters that hold a nested model (an inline table with its own ``model`` key).
 MODEL_PARAMS = {"coat", "base", "a", "b"}
 #: Parameters that may carry a colour-channel axis (a list); every other numeric parameter is a scalar.

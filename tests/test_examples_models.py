@@ -1,9 +1,13 @@
-"""Checks moved from the docstring examples of matfit.models (values, invariants, errors)."""
+"""Checks moved from the docstring examples of matfit.models (values, invariants, errors), and of the
+model registry (matfit.models.MODELS) against its users."""
+
+import re
 
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from matfit.errors import ParameterError
 from matfit.models import Lambert, SmoothConductor, SmoothDielectric, SoAPairs
 
 UP = jnp.array([0.0, 0.0, 1.0])
@@ -148,3 +152,45 @@ def test_small_helpers_of_the_model_files():
     assert float(Blend(Lambert(0.5), Lambert(0.1), 0.25).mix(1.0, 3.0)[0]) == 1.5
     assert bool(RoughDielectric(0.2, 1.0).index_matched()) and not bool(RoughDielectric(0.2, 1.5).index_matched())
     assert Plastic(0.5).has_delta_lobe and not Plastic(0.5, alpha=0.1).has_delta_lobe  # a smooth coat's mirror lobe
+
+
+def test_registry_holds_every_public_model():
+    import inspect
+
+    from matfit import models
+
+    public = {n: getattr(models, n) for n in models.__all__}
+    classes = {n for n, obj in public.items() if inspect.isclass(obj) and issubclass(obj, models.AbstractBSDF)
+               and not inspect.isabstract(obj) and not n.startswith("Abstract")}
+    assert classes and classes <= set(models.MODELS)
+    assert "CoatedConductor" in models.MODELS  # a factory, named like the model it builds
+    for name, obj in models.MODELS.items():
+        assert public[name] is obj and models.MODEL_USES[name] <= {"document", "scene"}
+    assert models.models_for("scene") == {n: m for n, m in models.MODELS.items() if "scene" in models.MODEL_USES[n]}
+    with pytest.raises(ParameterError, match="use must be one of"):
+        models.models_for("renderer")
+
+
+def test_model_file_and_scenes_accept_the_registry_entries_they_declare():
+    from data_synth import SceneError, UnknownModelError, parse_scene
+    from matfit.errors import DataFormatError
+    from matfit.export import model_from_description
+    from matfit.models import MODELS, models_for
+
+    documents, scenes = models_for("document"), models_for("scene")
+    assert documents and scenes and set(documents) != set(scenes)
+    for name in MODELS:
+        with pytest.raises(DataFormatError) as e:
+            model_from_description({"type": name})  # no fields: refused, naming the problem
+        assert ("expected one of" not in str(e.value)) == (name in documents)
+        scene = {"geometry": {"kind": "inplane"}, "material": {"model": name}}
+        try:
+            parse_scene(scene, file="s.toml")
+            refused = None
+        except SceneError as err:
+            refused = err
+        assert isinstance(refused, UnknownModelError) == (name not in scenes), name
+    with pytest.raises(DataFormatError, match=re.escape(f"expected one of {sorted(documents)}, found 'Phong'")):
+        model_from_description({"type": "Phong"})
+    with pytest.raises(UnknownModelError, match=re.escape(f"one of {sorted(scenes)}")):
+        parse_scene({"geometry": {"kind": "inplane"}, "material": {"model": "Phong"}})

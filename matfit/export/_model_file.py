@@ -33,10 +33,8 @@ from ..microfacet import TabulatedNDF
 
 FORMAT_VERSION = 1
 
-#: The classes a model document may name.
-MODEL_CLASSES = {name: getattr(_models, name) for name in (
-    "Lambert", "RoughConductor", "SmoothConductor", "RoughDielectric", "SmoothDielectric", "Plastic", "Layered",
-    "Blend", "StochasticLayered", "GltfPBR", "DiffuseSpecular", "TabulatedMicrofacet", "MultiLobe", "SpecularLobe", "Sheen")}
+#: The classes a model document may name: the registry's entries declared for ``"document"``.
+MODEL_CLASSES = _models.models_for("document")
 #: The fields of a tabulated distribution's description (:class:`~matfit.microfacet.TabulatedNDF`'s arguments).
 NDF_FIELDS = ("theta", "d", "n_lambda")
 

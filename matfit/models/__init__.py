@@ -3,6 +3,7 @@
 from ._base import AbstractBSDF
 from ._microfacet import AbstractMicrofacetBSDF
 from ._pairs import SoAPairs, half_vector, valid_reflection
+from ._registry import MODEL_USES, MODELS, models_for
 from .blend import Blend
 from .diffuse_specular import DiffuseSpecular
 from .gltf_pbr import GltfPBR
@@ -45,4 +46,7 @@ __all__ = [
     "SmoothConductor",
     "SmoothDielectric",
     "TabulatedMicrofacet",
+    "MODELS",
+    "MODEL_USES",
+    "models_for",
 ]
