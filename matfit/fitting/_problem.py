@@ -35,8 +35,8 @@ class Problem:
 
     Attributes
     ----------
-    family : str
-        A key of :data:`~matfit.fitting.FAMILIES`.
+    family : str or Family
+        A key of :data:`~matfit.fitting.FAMILIES`, or a :class:`~matfit.fitting.Family`.
     channels : int
         Colour channels of the tables.
     fixed : tuple of (str, tuple of float)
@@ -81,7 +81,7 @@ class Problem:
         loss = "l2" if loss is None else loss
         check_loss(loss, robust)
         try:
-            problem = _interned(cls(str(family), int(channels), fixed_items(fixed), tuple(tied), loss, robust,
+            problem = _interned(cls(family, int(channels), fixed_items(fixed), tuple(tied), loss, robust,
                                     float(robust_scale)))
             problem.par  # noqa: B018  (builds and checks the parametrization: unknown names raise here)
         except (TypeError, ValueError):

@@ -141,8 +141,9 @@ def recommend(rows, tol=DEFAULT_TOL):
 def robust_fit(table, model, init=None, fixed=None, tied=(), **fit_kwargs):
     """:func:`~matfit.fitting.fit` from two starting points; the result of lower objective.
 
-    The first start is ``init`` or :func:`~matfit.fitting.initial_guess`, the second a generic
-    mid-range point (:meth:`~matfit.fitting.Family.generic_start`). Both runs share one compiled
+    The first fit starts as :func:`~matfit.fitting.fit` does (``init`` replacing entries of the
+    data-driven guess, and its screened candidates, the NDF-width one included), the second from a
+    generic mid-range point (:meth:`~matfit.fitting.Family.generic_start`). Both runs share one compiled
     solver, so the second costs only its iterations. This guards against the data-driven guess
     landing in a poor basin (e.g. a conductor's ``k`` at its bound when a sparse table makes the
     peak look wide).
@@ -175,10 +176,12 @@ def robust_fit(table, model, init=None, fixed=None, tied=(), **fit_kwargs):
                      fit_kwargs.get("robust_scale", 1.0)).par
     if init is not None:
         par.check_theta("robust_fit: init", init)
-    first = dict(init) if init is not None else initial_guess(table, par)
-    second = par.family.generic_start(first, [p.name for p in par.free])
+    # the first fit starts where fit itself starts (init replacing entries of the data-driven
+    # guess, whose NDF-width candidate then enters the screening); the second from mid-range
+    guess = dict(init) if init is not None else initial_guess(table, par)
+    second = par.family.generic_start(guess, [p.name for p in par.free])
     best, err = None, None
-    for start in (first, second):
+    for start in (init, second):
         try:
             r = fit(table, model=model, init=start, fixed=fixed, tied=tied, **fit_kwargs)
         except FitError as e:
