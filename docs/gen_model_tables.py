@@ -280,10 +280,8 @@ def render(name, obj):
 
     Parameters
     ----------
-    name : str
-        The model's name.
-    obj : class or function
-        The model class or factory.
+    name, obj : str, class or function
+        As for :func:`model_rows`.
 
     Returns
     -------

@@ -41,13 +41,12 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).parent))
-from map_recovery import FIXED, RANGES, truths  # noqa: E402
+from map_recovery import FIXED, RANGES, load_rows, recovered, truths, write_table  # noqa: E402
 
 from data_synth.geometry import mirror_biased_pairs  # noqa: E402
 from matfit import Table  # noqa: E402
 from matfit.fitting import fit, get_family  # noqa: E402
 
-OUT = Path(__file__).parent / "results"
 NOISE = 0.01
 
 
@@ -71,8 +70,7 @@ def judge(family, r, truth, table, clean):
             continue
         est, tr = np.atleast_1d(r.params[p.name]), np.atleast_1d(truth[p.name])
         se = _se(r, p.name, est.size)
-        rel = bool(np.all(np.abs(est / tr - 1) < 0.02))
-        within = bool(np.all((np.abs(est / tr - 1) < 0.02) | (np.abs(est - tr) < 3 * se)))
+        rel, within = (bool(np.all(x)) for x in recovered(est, tr, se))
         if p.name.startswith("alpha"):
             alpha_ok &= rel
         all_ok &= within
@@ -128,9 +126,7 @@ def main():
     ap.add_argument("--pairs", type=int, default=24)
     ap.add_argument("--noise", nargs="+", default=["multiplicative", "additive"])
     a = ap.parse_args()
-    OUT.mkdir(exist_ok=True)
-    path = OUT / "fit_recovery.json"
-    rows = json.loads(path.read_text())["rows"] if path.exists() else []
+    path, rows = load_rows("fit_recovery")
     for fam in a.families:
         for noise in a.noise:
             res = run(fam, a.pairs, a.tables, noise)
@@ -150,8 +146,7 @@ def main():
                      f"{x['alpha'] / n:.1%} | {x['all'] / n:.1%} | {x['global'] / n:.1%} | "
                      f"{x['false']} ({x['false_converged']} / {x['false_ok']}) | {x['warned']} | {x['refitted']} | {w} | "
                      f"{x['wall_s'] / n:.2f} |")
-    (OUT / "fit_recovery.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+    write_table("fit_recovery", lines)
 
 
 if __name__ == "__main__":

@@ -61,6 +61,27 @@ RANGES = {
 FIXED = {"car_paint": {"eta_base": ALUMINIUM_ETA}}
 
 
+def recovered(est, truth, se):
+    """Elementwise: the estimates within 2 % of the truth, and those within 2 % or within 3 of
+    their standard errors ``se``."""
+    rel = np.abs(est / truth - 1) < 0.02
+    return rel, rel | (np.abs(est - truth) < 3 * se)
+
+
+def load_rows(name):
+    """``(path, rows)``: the results file ``results/NAME.json`` and the rows it holds (none yet
+    when it is absent)."""
+    OUT.mkdir(exist_ok=True)
+    path = OUT / f"{name}.json"
+    return path, (json.loads(path.read_text())["rows"] if path.exists() else [])
+
+
+def write_table(name, lines):
+    """Write the Markdown table ``lines`` to ``results/NAME.md`` and print it."""
+    (OUT / f"{name}.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
 def design(n, rng):
     wo, wi, _, _ = mirror_biased_pairs(n, rng)
     return wo, wi
@@ -100,8 +121,7 @@ def run(family, n, side, seed=0, starts=1):
             continue
         est, tr = r.params[p.name].reshape(B, -1), truth[p.name].reshape(B, -1)
         se = r.stderr[p.name].reshape(B, -1)
-        rel = (np.abs(est / tr - 1) < 0.02).all(-1)
-        within = ((np.abs(est / tr - 1) < 0.02) | (np.abs(est - tr) < 3 * se)).all(-1)
+        rel, within = (x.all(-1) for x in recovered(est, tr, se))
         per[p.name] = {"within_2pct": float(rel.mean()), "within_2pct_or_3se": float(within.mean())}
         if p.name.startswith("alpha"):
             alpha_ok &= rel
@@ -129,9 +149,7 @@ def main():
     ap.add_argument("--side", type=int, default=32)
     ap.add_argument("--starts", type=int, default=1, help="first-pass starts per texel (fit_map's starts)")
     a = ap.parse_args()
-    OUT.mkdir(exist_ok=True)
-    path = OUT / "map_recovery.json"
-    rows = json.loads(path.read_text())["rows"] if path.exists() else []
+    path, rows = load_rows("map_recovery")
     for fam in a.families:
         for n in a.pairs:
             side = min(a.side, 16) if fam == "car_paint" else a.side
@@ -147,8 +165,7 @@ def main():
         lines.append(f"| {x['family']} | {x['pairs']} | {x.get('starts', 1)} | {x['texels']} | {x['alpha']:.2%} | {x['all']:.2%} | "
                      f"{x['global']:.2%} | {x['false_minima']} ({x['false_minima_flagged']}) | {x['suspect']} | "
                      f"{x['unflagged_over_10x']} | {x['refitted']} | {x['wall_s']:.1f} |")
-    (OUT / "map_recovery.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+    write_table("map_recovery", lines)
 
 
 if __name__ == "__main__":

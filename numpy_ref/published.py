@@ -336,6 +336,9 @@ class PublishedModel:
     ----------
     kd : array_like
         Diffuse albedo (RGB), bbm's ``Lambertian(albedo)``.
+    **values
+        The lobe's parameters by name: its RGB scale (the one named by :attr:`scale`) and single
+        values (a subclass's constructor names them).
 
     Attributes
     ----------
@@ -362,17 +365,21 @@ class PublishedModel:
 
     bbm_name = ""
     params = ()
+    #: The lobe's RGB scale, the parameter :meth:`specular` multiplies :meth:`_lobe` by.
+    scale = "ks"
 
-    def __init__(self, kd):
+    def __init__(self, kd, **values):
         self.kd = _rgb(kd, "kd")
         self.source = None
         self.material = None
         self.origin = None
         self.published_error = None
         self.conflicts = []
+        for name, v in values.items():
+            setattr(self, name, _rgb(v, name) if name == self.scale else _scalar(v, name))
 
     def specular(self, wo, wi):
-        """The specular lobe alone.
+        """The specular lobe alone: the RGB scale (:attr:`scale`) times :meth:`_lobe`.
 
         Parameters
         ----------
@@ -384,6 +391,11 @@ class PublishedModel:
         numpy.ndarray
             (N, 3) in 1/sr, without the cosine; 0 below either horizon.
         """
+        g = _Geo(wo, wi)
+        return g.mask(getattr(self, self.scale)[None, :] * self._lobe(g)[:, None])
+
+    def _lobe(self, g):
+        """The lobe without its scale, per pair of ``g`` (a :class:`_Geo`), (N,)."""
         raise NotImplementedError
 
     def diffuse(self, wo, wi):
@@ -467,28 +479,14 @@ class LowCookTorrance(PublishedModel):
     params = ("ks", "m", "eta")
 
     def __init__(self, kd, ks, m, eta):
-        super().__init__(kd)
-        self.ks, self.m, self.eta = _rgb(ks, "ks"), _scalar(m, "m"), _scalar(eta, "eta")
+        super().__init__(kd, ks=ks, m=m, eta=eta)
         if not self.m > 0:
             raise ValueError(f"m must be > 0; got {self.m}")
 
-    def specular(self, wo, wi):
-        """``ks D G F / (pi ci co)`` (see the class docstring).
-
-        Parameters
-        ----------
-        wo, wi : array_like
-            Unit directions (N, 3).
-
-        Returns
-        -------
-        numpy.ndarray
-            (N, 3) in 1/sr.
-        """
-        g = _Geo(wo, wi)
+    def _lobe(self, g):
+        """``D G F / (pi ci co)`` (the class docstring), the lobe without ``ks``, (N,)."""
         D = np.exp(-g.tan2 / self.m ** 2) / (self.m ** 2 * g.ch ** 4)
-        s = D * g.vgroove() * fresnel_cook(self.eta, g.c) / (np.pi * g.ci * g.co)
-        return g.mask(self.ks[None, :] * s[:, None])
+        return D * g.vgroove() * fresnel_cook(self.eta, g.c) / (np.pi * g.ci * g.co)
 
 
 def _ashikhmin_shirley(g, n, F):
@@ -525,25 +523,11 @@ class LowAshikhminShirley(PublishedModel):
     params = ("ks", "n", "eta")
 
     def __init__(self, kd, ks, n, eta):
-        super().__init__(kd)
-        self.ks, self.n, self.eta = _rgb(ks, "ks"), _scalar(n, "n"), _scalar(eta, "eta")
+        super().__init__(kd, ks=ks, n=n, eta=eta)
 
-    def specular(self, wo, wi):
-        """The Ashikhmin-Shirley lobe with the Cook-Torrance Fresnel.
-
-        Parameters
-        ----------
-        wo, wi : array_like
-            Unit directions (N, 3).
-
-        Returns
-        -------
-        numpy.ndarray
-            (N, 3) in 1/sr.
-        """
-        g = _Geo(wo, wi)
-        s = _ashikhmin_shirley(g, self.n, fresnel_cook(self.eta, g.c))
-        return g.mask(self.ks[None, :] * s[:, None])
+    def _lobe(self, g):
+        """The Ashikhmin-Shirley lobe with the Cook-Torrance Fresnel, without ``ks``, (N,)."""
+        return _ashikhmin_shirley(g, self.n, fresnel_cook(self.eta, g.c))
 
 
 class LowSmooth(PublishedModel):
@@ -573,31 +557,18 @@ class LowSmooth(PublishedModel):
 
     bbm_name = "LowSmooth"
     params = ("A", "B", "C", "eta")
+    scale = "A"
 
     def __init__(self, kd, A, B, C, eta):
-        super().__init__(kd)
-        self.A, self.B, self.C, self.eta = _rgb(A, "A"), _scalar(B, "B"), _scalar(C, "C"), _scalar(eta, "eta")
+        super().__init__(kd, A=A, B=B, C=C, eta=eta)
 
-    def specular(self, wo, wi):
-        """``A (1 + B |Ip + Op|^2)^(-C) F(eta, c')``.
-
-        Parameters
-        ----------
-        wo, wi : array_like
-            Unit directions (N, 3).
-
-        Returns
-        -------
-        numpy.ndarray
-            (N, 3) in 1/sr.
-        """
-        g = _Geo(wo, wi)
+    def _lobe(self, g):
+        """``(1 + B |Ip + Op|^2)^(-C) F(eta, c')``, the lobe without ``A``, (N,)."""
         p_sum = g.wi[:, :2] + g.wo[:, :2]
         p_dif = g.wi[:, :2] - g.wo[:, :2]
         dp2 = np.sum(p_sum ** 2, 1)
         cd = np.sqrt(np.maximum(1.0 - 0.25 * np.sum(p_dif ** 2, 1), 0.0))
-        s = (1.0 + self.B * dp2) ** (-self.C) * fresnel_cook(self.eta, np.where(g.ok, cd, 1.0))
-        return g.mask(self.A[None, :] * s[:, None])
+        return (1.0 + self.B * dp2) ** (-self.C) * fresnel_cook(self.eta, np.where(g.ok, cd, 1.0))
 
 
 class LowMicrofacet(PublishedModel):
@@ -627,28 +598,15 @@ class LowMicrofacet(PublishedModel):
 
     bbm_name = "LowMicrofacetFit"
     params = ("A", "B", "C", "eta")
+    scale = "A"
 
     def __init__(self, kd, A, B, C, eta):
-        super().__init__(kd)
-        self.A, self.B, self.C, self.eta = _rgb(A, "A"), _scalar(B, "B"), _scalar(C, "C"), _scalar(eta, "eta")
+        super().__init__(kd, A=A, B=B, C=C, eta=eta)
 
-    def specular(self, wo, wi):
-        """``A S G F / (pi ci co)``.
-
-        Parameters
-        ----------
-        wo, wi : array_like
-            Unit directions (N, 3).
-
-        Returns
-        -------
-        numpy.ndarray
-            (N, 3) in 1/sr.
-        """
-        g = _Geo(wo, wi)
+    def _lobe(self, g):
+        """``S G F / (pi ci co)``, the lobe without ``A``, (N,)."""
         S = (1.0 + self.B * (1.0 - g.ch)) ** (-self.C)
-        s = S * g.vgroove() * fresnel_cook(self.eta, g.c) / (np.pi * g.ci * g.co)
-        return g.mask(self.A[None, :] * s[:, None])
+        return S * g.vgroove() * fresnel_cook(self.eta, g.c) / (np.pi * g.ci * g.co)
 
 
 class BagherSGD(PublishedModel):
@@ -747,18 +705,7 @@ class BagherSGD(PublishedModel):
         return self.f0 + (1.0 - self.f0) * (1.0 - c) ** 5 - self.f1 * c
 
     def specular(self, wo, wi):
-        """``rho_s D G1(wi) G1(wo) F / (pi ci co)``.
-
-        Parameters
-        ----------
-        wo, wi : array_like
-            Unit directions (N, 3).
-
-        Returns
-        -------
-        numpy.ndarray
-            (N, 3) in 1/sr.
-        """
+        """``rho_s D G1(wi) G1(wo) F / (pi ci co)``, per channel (N, 3) (as :meth:`PublishedModel.specular`)."""
         g = _Geo(wo, wi)
         ti = np.arccos(np.clip(g.ci, -1.0, 1.0))
         to = np.arccos(np.clip(g.co, -1.0, 1.0))
@@ -795,26 +742,12 @@ class NganCookTorrance(PublishedModel):
     params = ("ks", "f0", "m")
 
     def __init__(self, kd, ks, f0, m):
-        super().__init__(kd)
-        self.ks, self.f0, self.m = _rgb(ks, "ks"), _scalar(f0, "f0"), _scalar(m, "m")
+        super().__init__(kd, ks=ks, f0=f0, m=m)
 
-    def specular(self, wo, wi):
-        """``ks D G F / (pi ci co)`` with the normalized Beckmann ``D``.
-
-        Parameters
-        ----------
-        wo, wi : array_like
-            Unit directions (N, 3).
-
-        Returns
-        -------
-        numpy.ndarray
-            (N, 3) in 1/sr.
-        """
-        g = _Geo(wo, wi)
+    def _lobe(self, g):
+        """``D G F / (pi ci co)`` with the normalized Beckmann ``D``, the lobe without ``ks``, (N,)."""
         D = np.exp(-g.tan2 / self.m ** 2) / (np.pi * self.m ** 2 * g.ch ** 4)
-        s = D * g.vgroove() * fresnel_schlick_f0(self.f0, g.c) / (np.pi * g.ci * g.co)
-        return g.mask(self.ks[None, :] * s[:, None])
+        return D * g.vgroove() * fresnel_schlick_f0(self.f0, g.c) / (np.pi * g.ci * g.co)
 
 
 class NganAshikhminShirley(PublishedModel):
@@ -844,25 +777,11 @@ class NganAshikhminShirley(PublishedModel):
     params = ("ks", "f0", "n")
 
     def __init__(self, kd, ks, f0, n):
-        super().__init__(kd)
-        self.ks, self.f0, self.n = _rgb(ks, "ks"), _scalar(f0, "f0"), _scalar(n, "n")
+        super().__init__(kd, ks=ks, f0=f0, n=n)
 
-    def specular(self, wo, wi):
-        """The Ashikhmin-Shirley lobe with Schlick's Fresnel.
-
-        Parameters
-        ----------
-        wo, wi : array_like
-            Unit directions (N, 3).
-
-        Returns
-        -------
-        numpy.ndarray
-            (N, 3) in 1/sr.
-        """
-        g = _Geo(wo, wi)
-        s = _ashikhmin_shirley(g, self.n, fresnel_schlick_f0(self.f0, g.c))
-        return g.mask(self.ks[None, :] * s[:, None])
+    def _lobe(self, g):
+        """The Ashikhmin-Shirley lobe with Schlick's Fresnel, without ``ks``, (N,)."""
+        return _ashikhmin_shirley(g, self.n, fresnel_schlick_f0(self.f0, g.c))
 
 
 class NganBlinnPhong(PublishedModel):
@@ -891,25 +810,11 @@ class NganBlinnPhong(PublishedModel):
     params = ("ks", "n")
 
     def __init__(self, kd, ks, n):
-        super().__init__(kd)
-        self.ks, self.n = _rgb(ks, "ks"), _scalar(n, "n")
+        super().__init__(kd, ks=ks, n=n)
 
-    def specular(self, wo, wi):
-        """``ks (n + 2) / (2 pi) cos_h^n``.
-
-        Parameters
-        ----------
-        wo, wi : array_like
-            Unit directions (N, 3).
-
-        Returns
-        -------
-        numpy.ndarray
-            (N, 3) in 1/sr.
-        """
-        g = _Geo(wo, wi)
-        s = (self.n + 2.0) / (2.0 * np.pi) * g.ch ** self.n
-        return g.mask(self.ks[None, :] * s[:, None])
+    def _lobe(self, g):
+        """``(n + 2) / (2 pi) cos_h^n``, the lobe without ``ks``, (N,)."""
+        return (self.n + 2.0) / (2.0 * np.pi) * g.ch ** self.n
 
 
 class NganWard(PublishedModel):
@@ -938,26 +843,12 @@ class NganWard(PublishedModel):
     _duer = False
 
     def __init__(self, kd, ks, alpha):
-        super().__init__(kd)
-        self.ks, self.alpha = _rgb(ks, "ks"), _scalar(alpha, "alpha")
+        super().__init__(kd, ks=ks, alpha=alpha)
 
-    def specular(self, wo, wi):
-        """The Ward lobe (Duer's normalization in :class:`NganWardDuer`).
-
-        Parameters
-        ----------
-        wo, wi : array_like
-            Unit directions (N, 3).
-
-        Returns
-        -------
-        numpy.ndarray
-            (N, 3) in 1/sr.
-        """
-        g = _Geo(wo, wi)
+    def _lobe(self, g):
+        """The Ward lobe without ``ks`` (Duer's normalization in :class:`NganWardDuer`), (N,)."""
         norm = g.ci * g.co if self._duer else np.sqrt(g.ci * g.co)
-        s = np.exp(-g.tan2 / self.alpha ** 2) / (4.0 * np.pi * self.alpha ** 2 * norm)
-        return g.mask(self.ks[None, :] * s[:, None])
+        return np.exp(-g.tan2 / self.alpha ** 2) / (4.0 * np.pi * self.alpha ** 2 * norm)
 
 
 class NganWardDuer(NganWard):
@@ -1014,29 +905,15 @@ class NganLafortune(PublishedModel):
     params = ("ks", "cxy", "cz", "n")
 
     def __init__(self, kd, ks, cxy, cz, n):
-        super().__init__(kd)
-        self.ks, self.cxy, self.cz, self.n = _rgb(ks, "ks"), _scalar(cxy, "cxy"), _scalar(cz, "cz"), _scalar(n, "n")
+        super().__init__(kd, ks=ks, cxy=cxy, cz=cz, n=n)
         if max(abs(self.cxy), abs(self.cz)) == 0:
             raise ValueError("cxy and cz cannot both be 0")
 
-    def specular(self, wo, wi):
-        """The normalized Lafortune lobe.
-
-        Parameters
-        ----------
-        wo, wi : array_like
-            Unit directions (N, 3).
-
-        Returns
-        -------
-        numpy.ndarray
-            (N, 3) in 1/sr.
-        """
-        g = _Geo(wo, wi)
+    def _lobe(self, g):
+        """The normalized Lafortune lobe without ``ks``, (N,)."""
         q = self.cxy * (g.wi[:, 0] * g.wo[:, 0] + g.wi[:, 1] * g.wo[:, 1]) + self.cz * g.wi[:, 2] * g.wo[:, 2]
         q = np.maximum(q, 0.0) / max(abs(self.cxy), abs(self.cz))
-        s = (self.n + 2.0) / (2.0 * np.pi) * q ** self.n
-        return g.mask(self.ks[None, :] * s[:, None])
+        return (self.n + 2.0) / (2.0 * np.pi) * q ** self.n
 
 
 class UndefinedModel(PublishedModel):
@@ -1357,6 +1234,25 @@ def _ch(vals, stem):
     return [vals[f"{stem}_{c}"] for c in "rgb"]
 
 
+def _read_models(path, columns, source, build):
+    """``{material: model}`` of a CSV table of one fit per line (:func:`_read_table`): ``build``
+    makes a line's model from its values (its ``ValueError`` becomes a :class:`PublishedFitError`
+    naming the line); a material that appears twice is an error."""
+    path, rows = _read_table(path, columns)
+    out = {}
+    for ln, mat, v, _ in rows:
+        where = f"{path}, line {ln}"
+        if mat in out:
+            raise PublishedFitError(f"{where}: material {mat!r} appears twice")
+        try:
+            m = build(v)
+        except ValueError as e:
+            raise PublishedFitError(f"{where}: {e}") from None
+        m.source, m.material, m.origin = source, mat, where
+        out[mat] = m
+    return out
+
+
 _SGD_COLS = ["material"] + [f"{s}_{c}" for s in ("rhoD", "rhoS", "alpha", "p", "f0", "f1", "kap", "lambda", "c",
                                                  "k", "theta0", "error") for c in "rgb"]
 
@@ -1390,21 +1286,13 @@ def read_sgd_csv(path):
     >>> print(float(read_sgd_csv(p)["x"].published_error[0]))
     0.5
     """
-    path, rows = _read_table(path, _SGD_COLS)
-    out = {}
-    for ln, mat, v, _ in rows:
-        where = f"{path}, line {ln}"
-        if mat in out:
-            raise PublishedFitError(f"{where}: material {mat!r} appears twice")
-        try:
-            m = BagherSGD(_ch(v, "rhoD"), _ch(v, "rhoS"), _ch(v, "alpha"), _ch(v, "p"), _ch(v, "f0"), _ch(v, "f1"),
-                          _ch(v, "kap"), _ch(v, "lambda"), _ch(v, "c"), _ch(v, "k"), _ch(v, "theta0"))
-        except ValueError as e:
-            raise PublishedFitError(f"{where}: {e}") from None
-        m.source, m.material, m.origin = "bagher_sgd", mat, where
+    def build(v):
+        m = BagherSGD(_ch(v, "rhoD"), _ch(v, "rhoS"), _ch(v, "alpha"), _ch(v, "p"), _ch(v, "f0"), _ch(v, "f1"),
+                      _ch(v, "kap"), _ch(v, "lambda"), _ch(v, "c"), _ch(v, "k"), _ch(v, "theta0"))
         m.published_error = np.array(_ch(v, "error"))
-        out[mat] = m
-    return out
+        return m
+
+    return _read_models(path, _SGD_COLS, "bagher_sgd", build)
 
 
 _ABC_COLS = ["material", "kD_r", "kD_g", "kD_b", "A_r", "A_g", "A_b", "B", "C", "ior"]
@@ -1436,16 +1324,8 @@ def read_abc_csv(path):
     >>> print(read_abc_csv(p)["x"].B)
     100.0
     """
-    path, rows = _read_table(path, _ABC_COLS)
-    out = {}
-    for ln, mat, v, _ in rows:
-        where = f"{path}, line {ln}"
-        if mat in out:
-            raise PublishedFitError(f"{where}: material {mat!r} appears twice")
-        m = LowMicrofacet(_ch(v, "kD"), _ch(v, "A"), v["B"], v["C"], v["ior"])
-        m.source, m.material, m.origin = "low_lowmicrofacet_E2", mat, where
-        out[mat] = m
-    return out
+    return _read_models(path, _ABC_COLS, "low_lowmicrofacet_E2",
+                        lambda v: LowMicrofacet(_ch(v, "kD"), _ch(v, "A"), v["B"], v["C"], v["ior"]))
 
 
 def _agree(a, b, rel):

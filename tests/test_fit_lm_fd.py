@@ -9,6 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from testdata import random_pairs
 from matfit import Table
 from matfit.fitting import fit, fit_batch, initial_guess
 from matfit.fitting._residuals import by_channel, residual_fn, table_arrays
@@ -19,13 +20,7 @@ from matfit.models import RoughConductor
 
 def _table(n=96, seed=0, params=(0.3, [0.2, 0.9, 1.4], [3.6, 2.5, 1.9]), noise=0.02):
     rng = np.random.default_rng(seed)
-
-    def dirs():
-        th = np.arccos(rng.uniform(0.15, 1.0, n))
-        ph = rng.uniform(0, 2 * np.pi, n)
-        return np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], -1)
-
-    wo, wi = dirs(), dirs()
+    wo, wi = random_pairs(rng, n)
     a, e, k = params
     f = np.asarray(RoughConductor(a, jnp.asarray(e, float), jnp.asarray(k, float)).eval(jnp.asarray(wo), jnp.asarray(wi)))
     return Table(wo=wo, wi=wi, values=f * (1 + noise * rng.standard_normal(f.shape)), channels="rgb")

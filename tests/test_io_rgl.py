@@ -1,23 +1,13 @@
 """RGL .bsdf tensor files: container, warps, evaluation of the 7 shared measurements."""
-from pathlib import Path
-
 import numpy as np
 import pytest
 
+from testdata import rgl_path
 from matfit.io import load, read_rgl, read_tensor_file, write_tensor_file
 from matfit.io.rgl import RglBRDF, _Warp2D
 
-SHARED = Path(__file__).parents[1].parent / "shared"
-RGL_DIR = SHARED / "data" / "rgl"
 NAMES = ["cc_ibiza_sunset", "cc_iris_purple_gem", "cg_sunflower", "colodur_napoli_4f", "paper_white",
          "satin_rosaline", "vch_golden_yellow"]
-
-
-def rgl_path(name):
-    p = RGL_DIR / f"{name}_rgb.bsdf"
-    if not p.is_file():
-        pytest.skip(f"shared RGL data not found: {p} (../shared beside the checkout)")
-    return p
 
 
 _cache = {}

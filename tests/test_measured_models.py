@@ -21,7 +21,6 @@ from __future__ import annotations
 import os
 import sys
 import zlib
-from pathlib import Path
 
 import equinox as eqx
 import jax
@@ -31,6 +30,7 @@ import pytest
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import chi2 as c2  # noqa: E402
+from testdata import rgl_path  # noqa: E402
 
 from matfit.errors import DataFormatError, ParameterError  # noqa: E402
 from matfit.io import MerlBRDF, read_rgl  # noqa: E402
@@ -40,18 +40,9 @@ from matfit.models import MeasuredMERL, MeasuredRGL, RoughConductor  # noqa: E40
 from matfit.models import Lambert  # noqa: E402
 from matfit.render import render_sphere  # noqa: E402
 
-SHARED = Path(__file__).parents[1].parent / "shared"
-RGL_DIR = SHARED / "data" / "rgl"
 MI_FILES = ["cg_sunflower", "vch_golden_yellow", "cc_ibiza_sunset"]
 GOLD = (jnp.array([0.143, 0.374, 1.442]), jnp.array([3.983, 2.385, 1.603]))
 CHUNK = 1 << 13
-
-
-def rgl_path(name):
-    p = RGL_DIR / f"{name}_rgb.bsdf"
-    if not p.is_file():
-        pytest.skip(f"shared RGL data not found: {p} (../shared beside the checkout)")
-    return p
 
 
 _cache = {}

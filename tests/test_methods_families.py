@@ -9,6 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from testdata import random_pairs
 from matfit import Table
 from matfit.fitting import METHODS, fit
 from matfit.models import Plastic, RoughConductor
@@ -22,14 +23,7 @@ TRUTHS = {
 
 
 def _table(family, n=96, seed=0):
-    rng = np.random.default_rng(seed)
-
-    def dirs():
-        th = np.arccos(rng.uniform(0.15, 1.0, n))
-        ph = rng.uniform(0, 2 * np.pi, n)
-        return np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], -1)
-
-    wo, wi = dirs(), dirs()
+    wo, wi = random_pairs(np.random.default_rng(seed), n)
     wi[: n // 3] = wo[: n // 3] * [-1, -1, 1]  # a third at the mirror: the peak pins the width
     params, build = TRUTHS[family]
     f = np.asarray(build(params).eval(jnp.asarray(wo), jnp.asarray(wi)))

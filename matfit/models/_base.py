@@ -10,8 +10,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._math import COS_EPS, safe_div
 from ..errors import ParameterError
-from ._params import check_directions
+from ._pairs import SoAPairs
+from ._params import channel_count, check_complex_index, check_directions
 
 
 class AbstractBSDF(eqx.Module):
@@ -111,6 +113,16 @@ class AbstractBSDF(eqx.Module):
         """Energy carried by the model's Dirac lobes for ``wo`` (zero for a model without any)."""
         return jnp.zeros(wo.shape[:-1] + (self.channels,), wo.dtype)
 
+    def _weighted(self, wo, wi, above=False):
+        """``(wi, weight, pdf)`` of sampled directions ``wi``: ``weight = f |cos theta_i| / pdf``;
+        both 0 unless ``pdf > 0`` (and, with ``above``, both directions above ``COS_EPS``)."""
+        pdf = self.pdf(wo, wi)
+        ok = pdf > 0
+        if above:
+            ok = ok & (wi[..., 2] > COS_EPS) & (wo[..., 2] > COS_EPS)
+        weight = safe_div(self.eval(wo, wi) * jnp.abs(wi[..., 2])[..., None], pdf[..., None])
+        return wi, jnp.where(ok[..., None], weight, 0), jnp.where(ok, pdf, 0)
+
     def albedo(self, wo, method="quadrature", n=None, key=None):
         r"""Directional albedo :math:`E(\omega_o)` (class docstring), ``(..., C)``.
 
@@ -172,6 +184,38 @@ class AbstractDeltaBSDF(AbstractBSDF):
         return jnp.zeros(jnp.broadcast_shapes(wo.shape, wi.shape)[:-1], jnp.result_type(wo))
 
 
+class AbstractPairBSDF(AbstractBSDF):
+    """A model evaluated on prepared direction pairs: it defines ``eval_pairs``, and its ``eval``
+    is ``eval_pairs(SoAPairs.of(wo, wi))`` after the directions' checks; :attr:`pair_kernels`
+    unless the model says otherwise."""
+
+    pair_kernels: ClassVar[bool] = True
+
+    def eval(self, wo, wi):
+        check_directions(f"{type(self).__name__}.eval", wo=wo, wi=wi)
+        return self.eval_pairs(SoAPairs.of(wo, wi))
+
+    @abc.abstractmethod
+    def eval_pairs(self, pairs):
+        """:meth:`eval` on prepared direction pairs."""
+
+
+class AbstractConductor(AbstractBSDF):
+    """A model with a conductor's complex index ``eta + i k`` per colour channel: its fields
+    ``eta`` and ``k`` (declared by the model), checked and set by :meth:`_init_index`; ``C`` is
+    their channel count. (No abstract fields here: a field of a base comes first in the model's
+    pytree, and the models keep their own order of leaves.)"""
+
+    def _init_index(self, owner, eta, k):
+        check_complex_index(owner, eta, k)
+        self.eta = eta
+        self.k = k
+
+    @property
+    def channels(self):
+        return channel_count(self.eta, self.k)
+
+
 def dielectric_energy_factor(wo, wi, eta):
     """``etap^2`` for a transmitted pair, 1 for reflection: undoes the radiance BTDF's scaling.
 
@@ -183,4 +227,4 @@ def dielectric_energy_factor(wo, wi, eta):
     return jnp.where(refl, 1.0, etap * etap) * jnp.ones_like(wo[..., 2])
 
 
-__all__ = ["AbstractBSDF", "AbstractDeltaBSDF", "dielectric_energy_factor"]
+__all__ = ["AbstractBSDF", "AbstractConductor", "AbstractDeltaBSDF", "AbstractPairBSDF", "dielectric_energy_factor"]

@@ -15,6 +15,28 @@ from ._params import as_param, check_choice, check_range
 
 SAMPLING = ("visible", "dcos")
 
+#: The ``Parameters`` entries of the options that :meth:`AbstractMicrofacetBSDF._init_microfacet`
+#: checks and sets, written once for the models that take them all (:func:`with_options_doc`).
+OPTIONS_DOC = '''    distribution : {"ggx", "beckmann", "blinn_phong"}, default "ggx"; static, not differentiable
+        The microfacet distribution (:mod:`matfit.microfacet`); Blinn-Phong needs alpha <= 1.
+    masking : {"separable", "height_correlated"}, default "separable"; static, not differentiable
+        Smith masking form (:meth:`~matfit.microfacet.AbstractDistribution.G2`).
+    alpha_y : array_like or None, scalar or (...), default None; >= 0 or None; differentiable
+        Width along y for an anisotropic lobe; None ties it to ``alpha`` (isotropic).
+    sampling : {"visible", "dcos"}, default "visible"; static, not differentiable
+        Normals sampled from the normals visible from ``wo``, or from D cos; "visible" becomes
+        "dcos" for Blinn-Phong, which has no visible-normal sampler.
+'''
+
+
+def with_options_doc(cls):
+    """Class decorator: the line ``{microfacet options}`` of ``cls``'s docstring becomes :data:`OPTIONS_DOC`."""
+    if cls.__doc__ is not None:  # None under python -OO
+        if "    {microfacet options}\n" not in cls.__doc__:
+            raise ValueError(f"{cls.__name__}: its docstring has no line '{{microfacet options}}'")
+        cls.__doc__ = cls.__doc__.replace("    {microfacet options}\n", OPTIONS_DOC)
+    return cls
+
 
 class AbstractMicrofacetBSDF(AbstractBSDF):
     """A model built on one microfacet distribution: the distribution's fields, its reflection

@@ -5,17 +5,18 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._math import COS_EPS, cosine_hemisphere, normalize, safe_div
+from .._math import cosine_hemisphere, normalize, safe_div
 from ..fresnel import fresnel_schlick
-from ._microfacet import AbstractMicrofacetBSDF
-from ._pairs import SoAPairs
+from ._base import AbstractPairBSDF
+from ._microfacet import AbstractMicrofacetBSDF, with_options_doc
 from ._params import as_channels, channel_count, check_channels, check_directions, check_range, check_u
 from .lambert import cosine_pdf
 
 __all__ = ["DiffuseSpecular"]
 
 
-class DiffuseSpecular(AbstractMicrofacetBSDF):
+@with_options_doc
+class DiffuseSpecular(AbstractMicrofacetBSDF, AbstractPairBSDF):
     r"""Lambertian albedo plus a Schlick-Fresnel microfacet lobe: the texel model of spatially
     varying captures (an albedo, a specular colour :math:`F_0` and a width per texel), and the
     article's Cook-Torrance section with a diffuse term added:
@@ -47,15 +48,7 @@ class DiffuseSpecular(AbstractMicrofacetBSDF):
     alpha : array_like, scalar or (...), default 0.2; >= 0; differentiable
         Width of the microfacet distribution along x (both axes when isotropic): the GGX or
         Beckmann alpha, not a perceptual roughness; clamped to ``ALPHA_MIN`` = 1e-4 inside D.
-    distribution : {"ggx", "beckmann", "blinn_phong"}, default "ggx"; static, not differentiable
-        The microfacet distribution (:mod:`matfit.microfacet`); Blinn-Phong needs alpha <= 1.
-    masking : {"separable", "height_correlated"}, default "separable"; static, not differentiable
-        Smith masking form (:meth:`~matfit.microfacet.AbstractDistribution.G2`).
-    alpha_y : array_like or None, scalar or (...), default None; >= 0 or None; differentiable
-        Width along y for an anisotropic lobe; None ties it to ``alpha`` (isotropic).
-    sampling : {"visible", "dcos"}, default "visible"; static, not differentiable
-        Normals sampled from the normals visible from ``wo``, or from D cos; "visible" becomes
-        "dcos" for Blinn-Phong, which has no visible-normal sampler.
+    {microfacet options}
 
     References
     ----------
@@ -90,12 +83,6 @@ class DiffuseSpecular(AbstractMicrofacetBSDF):
     def channels(self):
         return channel_count(self.diffuse, self.f0)
 
-    pair_kernels = True
-
-    def eval(self, wo, wi):
-        check_directions("DiffuseSpecular.eval", wo=wo, wi=wi)
-        return self.eval_pairs(SoAPairs.of(wo, wi))
-
     def eval_pairs(self, pairs):
         ok = pairs.valid
         spec = self.reflection_lobe(pairs)[..., None]
@@ -118,8 +105,4 @@ class DiffuseSpecular(AbstractMicrofacetBSDF):
         pd = self._p_diffuse()
         wi_d = cosine_hemisphere(u[..., 1], u[..., 2])
         wi_s = self.reflection_sample(wo, u[..., 1:3])
-        wi = normalize(jnp.where((u[..., 0] < pd)[..., None], wi_d, wi_s))
-        pdf = self.pdf(wo, wi)
-        ok = (pdf > 0) & (wi[..., 2] > COS_EPS) & (wo[..., 2] > COS_EPS)
-        weight = safe_div(self.eval(wo, wi) * jnp.abs(wi[..., 2])[..., None], pdf[..., None])
-        return wi, jnp.where(ok[..., None], weight, 0), jnp.where(ok, pdf, 0)
+        return self._weighted(wo, normalize(jnp.where((u[..., 0] < pd)[..., None], wi_d, wi_s)), above=True)

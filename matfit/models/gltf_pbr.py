@@ -7,7 +7,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._math import COS_EPS, cosine_hemisphere, normalize, safe_div
+from .._math import cosine_hemisphere, normalize
 from ._base import AbstractBSDF
 from ._pairs import SoAPairs
 from ..microfacet import MASKING_FORMS
@@ -201,8 +201,4 @@ class GltfPBR(AbstractBSDF):
         wi_c = self._lobe(self.clearcoat_alpha).reflection_sample(wo, u[..., 1:3])
         u0 = u[..., 0][..., None]
         wi = jnp.where(u0 < pd[..., None], wi_d, jnp.where(u0 < (pd + ps)[..., None], wi_s, wi_c))
-        wi = normalize(wi)
-        pdf = self.pdf(wo, wi)
-        ok = (pdf > 0) & (wi[..., 2] > COS_EPS) & (wo[..., 2] > COS_EPS)
-        weight = safe_div(self.eval(wo, wi) * jnp.abs(wi[..., 2])[..., None], pdf[..., None])
-        return wi, jnp.where(ok[..., None], weight, 0), jnp.where(ok, pdf, 0)
+        return self._weighted(wo, normalize(wi), above=True)

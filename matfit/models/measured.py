@@ -253,6 +253,35 @@ class _Warp(eqx.Module):
         return pos, _lerp(c0, c1, tx)
 
 
+class _AbstractMeasured(AbstractBSDF):
+    """A measured table as a model: ``eval``, ``pdf`` and ``sample`` check their input, flatten
+    the batch to ``(N, 3)`` rows (:func:`_flatten`) and call the model's ``_eval``, ``_pdf`` and
+    ``_sample`` on them."""
+
+    def eval(self, wo, wi):
+        check_directions(f"{type(self).__name__}.eval", wo=wo, wi=wi)
+        batch, o, i = _flatten(wo, wi)
+        return self._eval(o, i).reshape(batch + (self.channels,))
+
+    def pdf(self, wo, wi):
+        check_directions(f"{type(self).__name__}.pdf", wo=wo, wi=wi)
+        batch, o, i = _flatten(wo, wi)
+        return self._pdf(o, i).reshape(batch)
+
+    def sample(self, wo, u):
+        check_directions(f"{type(self).__name__}.sample", wo=wo)
+        check_u(f"{type(self).__name__}.sample", u, 3)
+        batch, o, uu = _flatten(wo, u)
+        wi, weight, pdf = self._sample(o, uu)
+        return wi.reshape(batch + (3,)), weight.reshape(batch + (self.channels,)), pdf.reshape(batch)
+
+    def _flat_weighted(self, wo, wi, pdf, ok):
+        """``(wi, weight, pdf)`` of flat samples: ``weight = f cos(theta_i) / pdf``, both 0 where not ``ok``."""
+        f = self._eval(wo, wi)
+        weight = jnp.where(ok[:, None], f * wi[:, 2:3] / jnp.where(ok, pdf, 1)[:, None], 0)
+        return wi, weight, jnp.where(ok, pdf, 0)
+
+
 def _theta2u(t):
     return jnp.sqrt(jnp.maximum(t, 0) * (2 / jnp.pi))
 
@@ -261,7 +290,7 @@ def _phi2u(p):
     return (p + jnp.pi) / (2 * jnp.pi)
 
 
-class MeasuredRGL(AbstractBSDF):
+class MeasuredRGL(_AbstractMeasured):
     r"""An RGL material-database measurement (``.bsdf`` tensor file) as a model.
 
     ``eval(wo, wi)`` is :meth:`matfit.io.RglBRDF.eval` in JAX, with ``wi`` (the light) in the
@@ -384,21 +413,24 @@ class MeasuredRGL(AbstractBSDF):
         batch, o, i = _flatten(wo, wi)
         return self._eval_cos(o, i).reshape(batch + (self.n_channels,))
 
+    def _invert(self, wo, wi, incident):
+        """The pairs' half vector ``m``, seen with ``incident`` (``wo`` or ``wi``) as the warps'
+        incidence: ``(m, par, u_inc, u_m, sample, p_vndf)``: the incidence's warp parameters
+        ``(phi, theta)`` and unit coordinates, ``m``'s unit coordinates, and the VNDF warp's
+        inverse at them (the sample-space point and its density)."""
+        m = _safe_normalize(wo + wi)
+        theta, phi, u_inc = self._angles(incident)
+        u_m = self._u_m(m, phi)
+        sample, p_vndf = self.vndf.invert(u_m, (phi, theta))
+        return m, (phi, theta), u_inc, u_m, sample, p_vndf
+
     def _eval_cos(self, wo, wi):
         ok = valid_reflection(wo, wi)
-        m = _safe_normalize(wo + wi)
-        theta_i, phi_i, u_wi = self._angles(wi)
-        u_m = self._u_m(m, phi_i)
-        sample, _ = self.vndf.invert(u_m, (phi_i, theta_i))
-        spec = jnp.maximum(self.spectra.eval(sample, (phi_i, theta_i)), 0)
+        _, par, u_wi, u_m, sample, _ = self._invert(wo, wi, wi)
+        spec = jnp.maximum(self.spectra.eval(sample, par), 0)
         if self.jacobian:
             spec = spec * (self.ndf.eval(u_m) / (4 * self.sigma.eval(u_wi)))[:, None]
         return jnp.where(ok[:, None], spec, 0)
-
-    def eval(self, wo, wi):
-        check_directions("MeasuredRGL.eval", wo=wo, wi=wi)
-        batch, o, i = _flatten(wo, wi)
-        return self._eval(o, i).reshape(batch + (self.n_channels,))
 
     def _eval(self, wo, wi):
         ok = valid_reflection(wo, wi)
@@ -408,28 +440,13 @@ class MeasuredRGL(AbstractBSDF):
         sin_m = jnp.sin(u_m[:, 0] ** 2 * _HALF_PI)
         return jnp.maximum(2 * np.pi ** 2 * u_m[:, 0] * sin_m, 1e-6) * 4 * jnp.sum(wo * m, -1)
 
-    def pdf(self, wo, wi):
-        check_directions("MeasuredRGL.pdf", wo=wo, wi=wi)
-        batch, o, i = _flatten(wo, wi)
-        return self._pdf(o, i).reshape(batch)
-
     def _pdf(self, wo, wi):
         ok = valid_reflection(wo, wi)
-        m = _safe_normalize(wo + wi)
-        theta_o, phi_o, _ = self._angles(wo)
-        u_m = self._u_m(m, phi_o)
-        sample, p_vndf = self.vndf.invert(u_m, (phi_o, theta_o))
-        p_lum = self.luminance.eval(sample, (phi_o, theta_o))
+        m, par, _, u_m, sample, p_vndf = self._invert(wo, wi, wo)
+        p_lum = self.luminance.eval(sample, par)
         jac = self._jac(u_m, wo, m)
         p = p_vndf * p_lum / jnp.where(jac > 0, jac, 1)
         return jnp.where(ok & (jac > 0), jnp.maximum(p, 0), 0)
-
-    def sample(self, wo, u):
-        check_directions("MeasuredRGL.sample", wo=wo)
-        check_u("MeasuredRGL.sample", u, 3)
-        batch, o, uu = _flatten(wo, u)
-        wi, weight, pdf = self._sample(o, uu)
-        return wi.reshape(batch + (3,)), weight.reshape(batch + (self.n_channels,)), pdf.reshape(batch)
 
     def _sample(self, wo, u):
         theta_o, phi_o, _ = self._angles(wo)
@@ -442,11 +459,7 @@ class MeasuredRGL(AbstractBSDF):
         wi = _safe_normalize(_reflect(wo, m))
         jac = self._jac(u_m, wo, m)
         pdf = p_vndf * p_lum / jnp.where(jac > 0, jac, 1)
-        ok = valid_reflection(wo, wi) & (jac > 0) & (pdf > 0)
-        pdf = jnp.where(ok, pdf, 0)
-        f = self._eval(wo, wi)
-        weight = jnp.where(ok[:, None], f * wi[:, 2:3] / jnp.where(ok, pdf, 1)[:, None], 0)
-        return wi, weight, pdf
+        return self._flat_weighted(wo, wi, pdf, valid_reflection(wo, wi) & (jac > 0) & (pdf > 0))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -507,7 +520,7 @@ def _merl_value(values, mask, wo, wi):
 _merl_value_jit = jax.jit(_merl_value)
 
 
-class MeasuredMERL(AbstractBSDF):
+class MeasuredMERL(_AbstractMeasured):
     r"""A MERL table (Matusik et al. 2003, ``.binary``) as a model.
 
     ``eval`` interpolates trilinearly between the cell centres of MERL's
@@ -662,11 +675,6 @@ class MeasuredMERL(AbstractBSDF):
         """The file read (None for a table built in memory or read from bytes)."""
         return self.info.source
 
-    def eval(self, wo, wi):
-        check_directions("MeasuredMERL.eval", wo=wo, wi=wi)
-        batch, o, i = _flatten(wo, wi)
-        return self._eval(o, i).reshape(batch + (3,))
-
     def _eval(self, wo, wi):
         ok = valid_reflection(wo, wi)
         f = _merl_value(_const(self.values), _const(self.mask), wo, wi)
@@ -676,11 +684,6 @@ class MeasuredMERL(AbstractBSDF):
         t = _elevation(wo) / _HALF_PI * (self.n_theta_o - 1)
         k0 = jnp.clip(jnp.floor(t), 0, self.n_theta_o - 2).astype(jnp.int32)
         return k0, jnp.clip(t - k0, 0, 1)
-
-    def pdf(self, wo, wi):
-        check_directions("MeasuredMERL.pdf", wo=wo, wi=wi)
-        batch, o, i = _flatten(wo, wi)
-        return self._pdf(o, i).reshape(batch)
 
     def _pdf(self, wo, wi):
         ok = valid_reflection(wo, wi)
@@ -699,13 +702,6 @@ class MeasuredMERL(AbstractBSDF):
         c = self.diffuse_fraction
         p = c * jnp.maximum(wi[:, 2], 0) / jnp.pi + (1 - c) * p_tab
         return jnp.where(ok, p, 0)
-
-    def sample(self, wo, u):
-        check_directions("MeasuredMERL.sample", wo=wo)
-        check_u("MeasuredMERL.sample", u, 3)
-        batch, o, uu = _flatten(wo, u)
-        wi, weight, pdf = self._sample(o, uu)
-        return wi.reshape(batch + (3,)), weight.reshape(batch + (3,)), pdf.reshape(batch)
 
     def _sample(self, wo, u):
         c = self.diffuse_fraction
@@ -731,10 +727,7 @@ class MeasuredMERL(AbstractBSDF):
         wi_cos = cosine_hemisphere(u1, u2)
         wi = jnp.where((u[:, 0] < c)[:, None], wi_cos, wi_tab)
         pdf = self._pdf(wo, wi)
-        ok = pdf > 0
-        f = self._eval(wo, wi)
-        weight = jnp.where(ok[:, None], f * wi[:, 2:3] / jnp.where(ok, pdf, 1)[:, None], 0)
-        return wi, weight, jnp.where(ok, pdf, 0)
+        return self._flat_weighted(wo, wi, pdf, pdf > 0)
 
 
 def measured_model(table):

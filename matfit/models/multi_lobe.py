@@ -8,12 +8,11 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from .._math import COS_EPS, cosine_hemisphere, normalize, safe_div
+from .._math import cosine_hemisphere, normalize, safe_div
 from ..errors import ParameterError
 from ..fresnel import fresnel_conductor, fresnel_dielectric, fresnel_schlick, fresnel_thin_film
-from ._base import AbstractBSDF
+from ._base import AbstractPairBSDF
 from ._microfacet import AbstractMicrofacetBSDF
-from ._pairs import SoAPairs
 from ._params import (as_channels, channel_count, check_channels, check_choice, check_complex_index, check_directions,
                       check_range, check_u)
 from .lambert import cosine_pdf
@@ -30,7 +29,7 @@ FRESNEL_PARAMS = {"schlick": ("f0",), "dielectric": ("eta",), "conductor": ("eta
 _SCHLICK_AVERAGE = 1.0 / 21.0
 
 
-class SpecularLobe(AbstractMicrofacetBSDF):
+class SpecularLobe(AbstractMicrofacetBSDF, AbstractPairBSDF):
     r"""One weighted microfacet reflection lobe, a model on its own and the component of
     :class:`MultiLobe`:
 
@@ -193,17 +192,13 @@ class SpecularLobe(AbstractMicrofacetBSDF):
         # D G2 / (4 cos cos) once per pair (0 where invalid); the weighted Fresnel per channel
         return self.reflection_lobe(pairs)[..., None] * self.fresnel_term(pairs)
 
-    def eval(self, wo, wi):
-        check_directions("SpecularLobe.eval", wo=wo, wi=wi)
-        return self.eval_pairs(SoAPairs.of(wo, wi))
-
     def sample(self, wo, u):
         check_directions("SpecularLobe.sample", wo=wo)
         check_u("SpecularLobe.sample", u, 3)
-        return _sampled(self, wo, self.reflection_sample(wo, u[..., 1:3]))
+        return self._weighted(wo, self.reflection_sample(wo, u[..., 1:3]), above=True)
 
 
-class MultiLobe(AbstractBSDF):
+class MultiLobe(AbstractPairBSDF):
     r"""A Lambertian base plus a sum of weighted microfacet lobes (:class:`SpecularLobe`).
 
     Measured materials often show more than one specular scale: a sharp highlight over a wide
@@ -288,10 +283,6 @@ class MultiLobe(AbstractBSDF):
             f = f + lobe.eval_pairs(pairs)
         return f
 
-    def eval(self, wo, wi):
-        check_directions("MultiLobe.eval", wo=wo, wi=wi)
-        return self.eval_pairs(SoAPairs.of(wo, wi))
-
     def probabilities(self):
         """The ``K + 1`` sampling probabilities ``(...)``: the cosine hemisphere first, then the lobes."""
         w = [jnp.mean(self.diffuse, axis=-1)] + [jnp.mean(lobe.reflectance_estimate(), axis=-1) for lobe in self.lobes]
@@ -320,14 +311,4 @@ class MultiLobe(AbstractBSDF):
             pick = (u0 >= start) & (pj > 0)
             wi = jnp.where(pick[..., None], lobe.reflection_sample(wo, u[..., 1:3]), wi)
             start = start + pj
-        return _sampled(self, wo, normalize(wi))
-
-
-def _sampled(model, wo, wi):
-    """``sample``'s ``(wi, weight, pdf)`` for drawn directions ``wi``: ``weight = f cos / pdf``;
-    a pair outside the upper hemisphere (``COS_EPS``) or of density 0 is invalid (weight and
-    pdf 0)."""
-    pdf = model.pdf(wo, wi)
-    ok = (pdf > 0) & (wi[..., 2] > COS_EPS) & (wo[..., 2] > COS_EPS)
-    weight = safe_div(model.eval(wo, wi) * jnp.abs(wi[..., 2])[..., None], pdf[..., None])
-    return wi, jnp.where(ok[..., None], weight, 0), jnp.where(ok, pdf, 0)
+        return self._weighted(wo, normalize(wi), above=True)

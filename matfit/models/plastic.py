@@ -6,6 +6,7 @@ import equinox as eqx
 import jax.numpy as jnp
 
 from .._math import cosine_hemisphere, per_pair, safe_div
+from ._base import AbstractPairBSDF
 from ._coated import AbstractCoatedBSDF
 from ._coat import coat_internal_reflectance, coat_reflection_pairs, coat_transmittance, is_smooth, make_coat
 from ._params import as_channels, channel_count, check_directions, check_range, check_u
@@ -15,7 +16,7 @@ from .lambert import cosine_pdf
 __all__ = ["Plastic"]
 
 
-class Plastic(AbstractCoatedBSDF):
+class Plastic(AbstractCoatedBSDF, AbstractPairBSDF):
     r"""Diffuse base under a dielectric clear coat (plastic, varnished wood):
 
     .. math:: f(\omega_o, \omega_i) = f_{coat}(\omega_o, \omega_i) + f_d(\omega_o, \omega_i)
@@ -93,8 +94,6 @@ class Plastic(AbstractCoatedBSDF):
         """The coat's index relative to the outside."""
         return self.coat.eta
 
-    pair_kernels = True
-
     def _channel_scale(self, table):
         # the per-channel factor of the diffuse lobe (no pair axis)
         k = self.reflectance / jnp.pi
@@ -102,10 +101,6 @@ class Plastic(AbstractCoatedBSDF):
             r_int = coat_internal_reflectance(self.coat, table)
             k = k / (self.coat.eta**2 * (1 - self.reflectance * r_int))
         return k
-
-    def eval(self, wo, wi):
-        check_directions("Plastic.eval", wo=wo, wi=wi)
-        return self.eval_pairs(SoAPairs.of(wo, wi))
 
     def eval_pairs(self, pairs):
         return self._eval_p(pairs, self._table())

@@ -5,16 +5,16 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._math import safe_div
 from ..fresnel import fresnel_conductor
-from ._microfacet import AbstractMicrofacetBSDF
-from ._pairs import SoAPairs
-from ._params import as_channels, channel_count, check_complex_index, check_directions, check_u
+from ._base import AbstractConductor, AbstractPairBSDF
+from ._microfacet import AbstractMicrofacetBSDF, with_options_doc
+from ._params import as_channels, check_directions, check_u
 
 __all__ = ["RoughConductor"]
 
 
-class RoughConductor(AbstractMicrofacetBSDF):
+@with_options_doc
+class RoughConductor(AbstractMicrofacetBSDF, AbstractConductor, AbstractPairBSDF):
     r"""Rough metal: Cook-Torrance microfacet reflection with the complex-index Fresnel,
 
     .. math::
@@ -35,15 +35,7 @@ class RoughConductor(AbstractMicrofacetBSDF):
         Real part of the conductor's complex index relative to the outside, per channel.
     k : array_like, scalar or (..., C); >= 0; differentiable
         Imaginary part (extinction coefficient), per channel.
-    distribution : {"ggx", "beckmann", "blinn_phong"}, default "ggx"; static, not differentiable
-        The microfacet distribution (:mod:`matfit.microfacet`); Blinn-Phong needs alpha <= 1.
-    masking : {"separable", "height_correlated"}, default "separable"; static, not differentiable
-        Smith masking form (:meth:`~matfit.microfacet.AbstractDistribution.G2`).
-    alpha_y : array_like or None, scalar or (...), default None; >= 0 or None; differentiable
-        Width along y for an anisotropic lobe; None ties it to ``alpha`` (isotropic).
-    sampling : {"visible", "dcos"}, default "visible"; static, not differentiable
-        Normals sampled from the normals visible from ``wo``, or from D cos; "visible" becomes
-        "dcos" for Blinn-Phong, which has no visible-normal sampler.
+    {microfacet options}
 
     References
     ----------
@@ -66,19 +58,7 @@ class RoughConductor(AbstractMicrofacetBSDF):
 
     def __init__(self, alpha, eta, k, distribution="ggx", masking="separable", alpha_y=None, sampling="visible"):
         self._init_microfacet("RoughConductor", alpha, alpha_y, distribution, masking, sampling)
-        check_complex_index("RoughConductor", eta, k)
-        self.eta = eta
-        self.k = k
-
-    @property
-    def channels(self):
-        return channel_count(self.eta, self.k)
-
-    pair_kernels = True
-
-    def eval(self, wo, wi):
-        check_directions("RoughConductor.eval", wo=wo, wi=wi)
-        return self.eval_pairs(SoAPairs.of(wo, wi))
+        self._init_index("RoughConductor", eta, k)
 
     def eval_pairs(self, pairs):
         # D G2 / (4 cos cos) is one loop over the pairs; F, per channel, reads it and cos_d only
@@ -92,8 +72,4 @@ class RoughConductor(AbstractMicrofacetBSDF):
     def sample(self, wo, u):
         check_directions("RoughConductor.sample", wo=wo)
         check_u("RoughConductor.sample", u, 3)
-        wi = self.reflection_sample(wo, u[..., 1:3])
-        pdf = self.pdf(wo, wi)
-        ok = pdf > 0
-        weight = safe_div(self.eval(wo, wi) * jnp.abs(wi[..., 2])[..., None], pdf[..., None])
-        return wi, jnp.where(ok[..., None], weight, 0), jnp.where(ok, pdf, 0)
+        return self._weighted(wo, self.reflection_sample(wo, u[..., 1:3]))

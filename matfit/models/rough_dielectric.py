@@ -7,7 +7,7 @@ import jax.numpy as jnp
 from .._math import COS_EPS, Vec3, dot, normalize, per_pair, reflect, refract, safe_div, sq
 from ..fresnel import fresnel_dielectric
 from ._base import dielectric_energy_factor
-from ._microfacet import AbstractMicrofacetBSDF
+from ._microfacet import AbstractMicrofacetBSDF, with_options_doc
 from ._params import as_param, check_directions, check_range, check_u
 
 __all__ = ["RoughDielectric", "ETA_PASS"]
@@ -16,6 +16,7 @@ __all__ = ["RoughDielectric", "ETA_PASS"]
 ETA_PASS = 1e-5
 
 
+@with_options_doc
 class RoughDielectric(AbstractMicrofacetBSDF):
     r"""Frosted glass: rough reflection and refraction through a dielectric interface
     (one colour channel, ``C = 1``).
@@ -55,15 +56,7 @@ class RoughDielectric(AbstractMicrofacetBSDF):
     eta : array_like, scalar or (...); > 0; differentiable
         Relative index inside / outside (below 1 for an inside less dense than the outside);
         one value per batch element (a pixel), no channel axis.
-    distribution : {"ggx", "beckmann", "blinn_phong"}, default "ggx"; static, not differentiable
-        The microfacet distribution (:mod:`matfit.microfacet`); Blinn-Phong needs alpha <= 1.
-    masking : {"separable", "height_correlated"}, default "separable"; static, not differentiable
-        Smith masking form (:meth:`~matfit.microfacet.AbstractDistribution.G2`).
-    alpha_y : array_like or None, scalar or (...), default None; >= 0 or None; differentiable
-        Width along y for an anisotropic lobe; None ties it to ``alpha`` (isotropic).
-    sampling : {"visible", "dcos"}, default "visible"; static, not differentiable
-        Normals sampled from the normals visible from ``wo``, or from D cos; "visible" becomes
-        "dcos" for Blinn-Phong, which has no visible-normal sampler.
+    {microfacet options}
 
     References
     ----------

@@ -7,7 +7,7 @@ import functools
 import jax.numpy as jnp
 import numpy as np
 
-from .._math import COS_EPS, cosine_hemisphere, safe_div
+from .._math import cosine_hemisphere, safe_div
 from ..errors import ParameterError
 from ._base import AbstractBSDF
 from ._pairs import SoAPairs
@@ -211,7 +211,4 @@ class Sheen(AbstractBSDF):
         u0 = jnp.clip(jnp.where(pick, 0.0, safe_div(u[..., 0] - p, 1 - p)), 0, 1 - 1e-7)
         wi_b, _, _ = self.base.sample(wo, jnp.concatenate([u0[..., None], u[..., 1:3]], axis=-1))
         wi = jnp.where(pick[..., None], cosine_hemisphere(u[..., 1], u[..., 2]), wi_b)
-        pdf = self.pdf(wo, wi)
-        ok = (pdf > 0) & (wi[..., 2] > COS_EPS) & (wo[..., 2] > COS_EPS)
-        weight = safe_div(self.eval(wo, wi) * jnp.abs(wi[..., 2])[..., None], pdf[..., None])
-        return wi, jnp.where(ok[..., None], weight, 0), jnp.where(ok, pdf, 0)
+        return self._weighted(wo, wi, above=True)

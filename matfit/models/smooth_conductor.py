@@ -7,13 +7,13 @@ import jax.numpy as jnp
 
 from .._math import COS_EPS, mirror
 from ..fresnel import fresnel_conductor
-from ._base import AbstractDeltaBSDF
-from ._params import as_channels, channel_count, check_complex_index, check_directions, check_u
+from ._base import AbstractConductor, AbstractDeltaBSDF
+from ._params import as_channels, check_directions, check_u
 
 __all__ = ["SmoothConductor"]
 
 
-class SmoothConductor(AbstractDeltaBSDF):
+class SmoothConductor(AbstractDeltaBSDF, AbstractConductor):
     r"""Perfect mirror with conductor Fresnel: the :math:`\alpha \to 0` limit of
     :class:`RoughConductor`. ``eval`` and ``pdf`` are zero (a Dirac lobe has no density);
     ``sample`` returns the mirror direction :math:`(-\omega_{o,x}, -\omega_{o,y}, \omega_{o,z})`,
@@ -43,13 +43,7 @@ class SmoothConductor(AbstractDeltaBSDF):
     k: jnp.ndarray = eqx.field(converter=as_channels)
 
     def __init__(self, eta, k):
-        check_complex_index("SmoothConductor", eta, k)
-        self.eta = eta
-        self.k = k
-
-    @property
-    def channels(self):
-        return channel_count(self.eta, self.k)
+        self._init_index("SmoothConductor", eta, k)
 
     def delta_albedo(self, wo):
         ok = wo[..., 2] > COS_EPS

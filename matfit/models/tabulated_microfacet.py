@@ -9,14 +9,14 @@ from .._math import dot, normalize, reflect, safe_div
 from ..errors import ParameterError
 from ..fresnel import fresnel_conductor
 from ..microfacet import MASKING_FORMS, TabulatedNDF
-from ._base import AbstractBSDF
-from ._pairs import SoAPairs, valid_reflection
-from ._params import as_channels, channel_count, check_choice, check_complex_index, check_directions, check_u
+from ._base import AbstractConductor, AbstractPairBSDF
+from ._pairs import valid_reflection
+from ._params import as_channels, check_choice, check_directions, check_u
 
 __all__ = ["TabulatedMicrofacet"]
 
 
-class TabulatedMicrofacet(AbstractBSDF):
+class TabulatedMicrofacet(AbstractConductor, AbstractPairBSDF):
     r"""Rough metal on a tabulated isotropic distribution, with the conductor Fresnel:
 
     .. math::
@@ -77,21 +77,9 @@ class TabulatedMicrofacet(AbstractBSDF):
             raise ParameterError(f"TabulatedMicrofacet: ndf must be a matfit.microfacet.TabulatedNDF, "
                                  f"got {type(ndf).__name__}")
         check_choice("TabulatedMicrofacet", "masking", masking, MASKING_FORMS)
-        check_complex_index("TabulatedMicrofacet", eta, k)
+        self._init_index("TabulatedMicrofacet", eta, k)
         self.ndf = ndf
-        self.eta = eta
-        self.k = k
         self.masking = masking
-
-    @property
-    def channels(self):
-        return channel_count(self.eta, self.k)
-
-    pair_kernels = True
-
-    def eval(self, wo, wi):
-        check_directions("TabulatedMicrofacet.eval", wo=wo, wi=wi)
-        return self.eval_pairs(SoAPairs.of(wo, wi))
 
     def eval_pairs(self, pairs):
         # the isotropic lobe reads cosines and h's squared sine only; invalid pairs map to the normal
@@ -111,8 +99,4 @@ class TabulatedMicrofacet(AbstractBSDF):
     def sample(self, wo, u):
         check_directions("TabulatedMicrofacet.sample", wo=wo)
         check_u("TabulatedMicrofacet.sample", u, 3)
-        wi = reflect(wo, self.ndf.sample_dcos(u[..., 1:3]))
-        pdf = self.pdf(wo, wi)
-        ok = pdf > 0
-        weight = safe_div(self.eval(wo, wi) * jnp.abs(wi[..., 2])[..., None], pdf[..., None])
-        return wi, jnp.where(ok[..., None], weight, 0), jnp.where(ok, pdf, 0)
+        return self._weighted(wo, reflect(wo, self.ndf.sample_dcos(u[..., 1:3])))
