@@ -5,7 +5,7 @@
 specular peak of GGX lobes from narrow (alpha 0.05) to broad (alpha 0.6): a few cameras, and for
 each a sweep of lights whose half vector makes increasing angles with the normal, plus a few
 lights far from the mirror direction for the diffuse part. :func:`render_capture` renders a
-model family of :mod:`matfit.fitting.params` with parameter maps into such a capture folder.
+model family of :mod:`matfit.fitting.families` with parameter maps into such a capture folder.
 
 Radiometry (the loader's convention): a linear pixel is
 ``scale_j * flat(x) * f(wo, wi) * cos(theta_i) * E_j``. The renderer uses ``E_j = 1``
@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from matfit.errors import ParameterError
-from matfit.fitting.params import get_family
+from matfit.fitting.families import get_family
 from matfit.maps import write_capture_document
 from matfit.maps import write_exr, write_png
 
@@ -241,7 +241,7 @@ def render_capture(folder, params, model="conductor", lights=None, cameras=None,
         Parameter maps of the family ``model``: name -> (H, W), or (H, W, 3) for per-channel
         parameters ((H, W) ones are shared by the channels).
     model : str
-        A family of :func:`matfit.fitting.params.get_family` (e.g. ``"conductor"``, ``"plastic"``).
+        A family of :func:`matfit.fitting.families.get_family` (e.g. ``"conductor"``, ``"plastic"``).
     lights, cameras : array_like, optional
         Unit directions (N, 3) to the light and camera; cameras may be one (3,) direction. Both
         default to :func:`capture_directions` (24 images); lights without cameras use the normal.

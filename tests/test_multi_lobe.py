@@ -481,7 +481,7 @@ def test_a_family_declared_in_a_few_lines_fits(rng):
 @pytest.mark.parametrize("family", ["lobes2", "metal2"])
 def test_fit_a_table_larger_than_the_start_subset(family, rng):
     # the data-driven start reads MAX_ROWS rows of a larger table: the fit runs on all of them
-    from matfit.fitting.params import MAX_ROWS
+    from matfit.fitting._compose import MAX_ROWS
 
     truth = FAMILIES["lobes2"].build({k: j(v, np.float32) for k, v in LOBES2_TRUTH.items()}, 3)
     table = _synthetic(truth, rng, n=(MAX_ROWS + 1000) // 2)

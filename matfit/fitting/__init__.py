@@ -4,9 +4,9 @@ from .fit import (CHANNEL_RHO_REFIT, METHODS, NOISE_FLOOR, channel_correlation, 
                   fit_arrays, fit_batch, guesses_from_arrays, initial_guess, initial_guesses, noise_level, refit_line, covariance, SANDWICH_MAX, LEVERAGE_MAX)
 from .losses import LOSSES, residuals
 from .methods import DEFAULT_METHOD, Method, get_method
-from .params import (FAMILIES, REDUCE_TOL, Family, Lobe, Param, Parametrization, TruthMap, compose_family, family_describing,
-                     get_family, reduced_family)
-from ._compose import METAL_ETA_RANGE, METAL_K_RANGE
+from .families import (FAMILIES, METAL_ETA_RANGE, METAL_K_RANGE, REDUCE_TOL, Family, Lobe, Param, TruthMap, compose_family,
+                       family_describing, get_family, reduced_family)
+from .params import Parametrization
 from ._problem import Problem
 
 __all__ = [

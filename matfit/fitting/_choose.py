@@ -268,7 +268,8 @@ def candidates_for(cues):
         out["sheen"] = "an excess at grazing angles, backward as well as forward (a sheen)"
     if cues.get("dark_floor") or cues.get("coloured_highlight"):
         out["conductor"] = "a dark floor under a strong peak" if cues.get("dark_floor") else "a coloured highlight"
-    from .params import FAMILIES, Parametrization
+    from .families import FAMILIES
+    from .params import Parametrization
 
     return dict(sorted(out.items(), key=lambda kv: Parametrization(kv[0], 3).size if kv[0] in FAMILIES else 0))
 
@@ -408,7 +409,8 @@ def choose_family(table, reference="auto", candidates=None, loss=None, log=None,
     ('lambert', 'appearance', True)
     """
     from ..models import measured_model
-    from .params import FAMILIES, Parametrization
+    from .families import FAMILIES
+    from .params import Parametrization
     from .select import compare_models, robust_fit
 
     if not isinstance(table, Table):

@@ -36,7 +36,8 @@ from .diagnostics import diagnose
 from .lm import group_map
 from .losses import prepare_targets
 from .methods import DEFAULT_METHOD, METHODS, get_method
-from .params import check_solver_options, reduced_family
+from .families import reduced_family
+from .params import check_solver_options
 
 __all__ = ["fit", "fit_batch", "fit_arrays", "FitResult", "FitError", "BatchFit", "initial_guess", "initial_guesses",
            "guesses_from_arrays", "fit_starts", "memory_estimate", "SCREEN_PER_START", "REFIT_SIGMAS", "refit_line", "SUSPECT_FACTOR",

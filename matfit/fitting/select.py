@@ -30,7 +30,7 @@ from ..table import Table
 from .fit import FitError, fit, initial_guess
 from .losses import residuals
 from ._problem import Problem
-from .params import get_family
+from .families import get_family
 
 __all__ = ["compare_models", "ModelComparison", "recommend", "robust_fit", "information_criteria", "DEFAULT_TOL"]
 
