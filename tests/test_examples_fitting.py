@@ -6,9 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from matfit.fitting.lm import (
-    BoxedDampedStep, GroupedDifferences, LevenbergMarquardtFD, NielsenDamping, StepTermination, half_sq, jacobian,
-    normal_equations, widen)
+from matfit.fitting.lm import LevenbergMarquardtFD, half_sq, jacobian, normal_equations, widen
 
 
 # -- lm ----------------------------------------------------------------------------------------------
@@ -36,23 +34,32 @@ def test_jacobian_materialized():
 
 
 def test_grouped_differences_central_and_evaluations():
-    assert GroupedDifferences(central=True).is_central(jnp.float64)
-    assert GroupedDifferences().evaluations(3, jnp.float32) == 6  # central in float32: two per group
+    assert LevenbergMarquardtFD(1e-8, 1e-10, central=True).is_central(jnp.float64)
+    assert LevenbergMarquardtFD(1e-8, 1e-10).evaluations(3, jnp.float32) == 6  # central in float32: two per group
 
 
-def test_nielsen_damping_init_and_accepted_update():
-    mu, nu = NielsenDamping(0.01).init(jnp.float32)
-    assert float(mu) == pytest.approx(0.01) and float(nu) == 2.0 and mu.dtype == jnp.float32
-    mu, nu = NielsenDamping().update(jnp.asarray(1.0), jnp.asarray(2.0), jnp.asarray(True), jnp.asarray(1.0))
+def test_nielsen_damping_accepted_and_rejected_updates():
+    solver = LevenbergMarquardtFD(1e-8, 1e-10)
+    mu, nu = solver._damping(jnp.asarray(1.0), jnp.asarray(2.0), jnp.asarray(True), jnp.asarray(1.0))
     assert float(mu) == pytest.approx(1 / 3) and float(nu) == 2.0
+    mu, nu = solver._damping(jnp.asarray(1.0), jnp.asarray(2.0), jnp.asarray(False), jnp.asarray(0.0))
+    assert float(mu) == 2.0 and float(nu) == 4.0  # rejected: mu <- mu nu, nu <- 2 nu
 
 
-def test_step_termination_at_start_needs_a_small_gradient():
-    assert not bool(StepTermination(1e-8, 1e-10).at_start(jnp.ones(2)))
+def test_boxed_step_caps_each_coordinate():
+    d = LevenbergMarquardtFD(1e-8, 1e-10, max_step=1.0)._step(jnp.eye(2), jnp.asarray(0.0), jnp.ones(2),
+                                                              jnp.array([-5.0, 0.5]))
+    np.testing.assert_allclose(np.asarray(d), [1.0, -0.5], atol=1e-12)
+
+
+def test_a_start_at_the_minimum_stops_without_a_step():
+    res = LevenbergMarquardtFD(1e-8, 1e-10).minimise(lambda z, a: (z - a)[None, :], jnp.ones(2), jnp.ones(2),
+                                                     np.eye(2), np.ones((2, 2)))
+    assert bool(res.converged) and int(res.steps) == 0 and int(res.evals) == 3  # the start and its Jacobian
 
 
 def test_minimise_shifted_identity():
-    solver = LevenbergMarquardtFD(GroupedDifferences(), BoxedDampedStep(), NielsenDamping(), StepTermination(1e-8, 1e-10))
+    solver = LevenbergMarquardtFD(1e-8, 1e-10)
     res = solver.minimise(lambda z, a: (z - a)[None, :], jnp.zeros(2), jnp.array([1.0, -1.0]), np.eye(2), np.ones((2, 2)))
     np.testing.assert_allclose(np.asarray(res.z), [1.0, -1.0], atol=1e-6)
 
@@ -167,7 +174,7 @@ def test_fit_result_summary_first_line():
 # -- _compose ----------------------------------------------------------------------------------------
 
 def test_lobe_layouts():
-    from matfit.fitting.params import Lobe, lobe_layout
+    from matfit.fitting._compose import Lobe, lobe_layout
 
     assert [s.name for s in lobe_layout("lambert", (Lobe(), Lobe()), "channels", True, ("f0",), ())] == [
         "albedo", "alpha_1", "ks_1", "f0", "ratio_2", "ks_2"]

@@ -193,9 +193,9 @@ def test_rejected_step_below_the_resolution_of_z_stops(dt, x64):
     """scipy's xtol test on a rejected step: after rejections (MINPACK's test no longer applies)
     a trial step shorter than max(rtol, 4 eps) (max(rtol, 4 eps) + |z|) ends the loop, a longer
     one does not."""
-    from matfit.fitting.lm import StepTermination
+    from matfit.fitting.lm import LevenbergMarquardtFD
 
-    term = StepTermination(1e-8, 1e-10)
+    term = LevenbergMarquardtFD(1e-8, 1e-10)._stops
     z = jnp.array([2.0, -1.0], dt)
     tol = max(1e-8, 4 * float(jnp.finfo(dt).eps))
     s = SimpleNamespace(z=z, F=jnp.asarray(10.0, dt), rejects=jnp.asarray(3))

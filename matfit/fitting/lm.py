@@ -4,10 +4,10 @@ The fast solver behind ``fit(..., method="lm_fd")`` for large tables (a full MER
 about 1.1 million valid cells, 3.3 million residuals) and for many small batched fits. One call
 is one XLA ``while_loop``; every iteration costs a few evaluations of the model on the table and
 a :math:`p \times p` solve, never an :math:`N \times p` factorization. This docstring describes
-the algorithm; :class:`LevenbergMarquardtFD` composes its parts and :func:`lm_fd` documents its
-options.
+the algorithm, which :class:`LevenbergMarquardtFD` implements in one loop; :func:`lm_fd`
+documents its options.
 
-Jacobian (:class:`GroupedDifferences`)
+Jacobian (``_jacobian``, :func:`normal_equations`)
     By forward differences, :math:`J_{:,j} \approx (r(z + h_j e_j) - r(z))/h_j` with
     :math:`h_j = \sqrt{\epsilon}\,\max(1, |z_j|)` (the rule of ``scipy.optimize.least_squares``
     and MINPACK), or central differences (``eps^(1/3)`` steps, two evaluations per group) in
@@ -35,7 +35,7 @@ Normal equations (:func:`normal_equations`)
     on channel ``c``): :math:`J^T J = \sum_c E_c^T (K_c^T K_c) E_c`,
     :math:`J^T r = \sum_c E_c^T K_c^T r_c`.
 
-Steps (:class:`BoxedDampedStep`, :class:`NielsenDamping`)
+Steps (``_step``, ``_damping``)
     After Nielsen 1999 and Madsen, Nielsen & Tingleff 2004, Alg. 3.16, with Marquardt's scaling:
     :math:`(J^TJ + \mu D)\,\delta = -J^Tr`, :math:`D` the largest diagonal of :math:`J^TJ` seen
     so far (Moré 1978: a parameter whose sensitivity vanishes, e.g. at a bound, keeps a finite
@@ -72,7 +72,7 @@ Secant model (``secant=True``, which ``fit`` also sets for a large table)
     that solve with the damping and the secant model of its subset solution (``warm``; ``S``
     scaled by the ratio of the two ``J^T J`` traces, both sums over rows): 4 steps.
 
-Stopping (:class:`StepTermination`)
+Stopping (``_stops``)
     ``converged`` after an accepted step with gain ratio above 1/4 that lowered the objective by at
     most ``max(rtol, 4 eps) * F + atol`` or moved ``z`` by at most ``rtol (rtol + |z|)`` (2-norms):
     the ``ftol``/``xtol`` rule of ``scipy.optimize.least_squares``, either one sufficing (a
@@ -109,11 +109,12 @@ from typing import NamedTuple, Optional
 
 import equinox as eqx
 import jax
+import jax.export
 import jax.numpy as jnp
 import numpy as np
 
 __all__ = ["column_groups", "jacobian", "lm_fd", "Solution", "normal_equations", "GRAM_BLOCK", "half_sq", "LevenbergMarquardtFD",
-           "GroupedDifferences", "BoxedDampedStep", "NielsenDamping", "StepTermination", "widen"]
+           "widen"]
 
 #: Column block of the channel-split Gram reductions; channel-split residuals padded to a
 #: multiple of it take the blocked path (:func:`_gram`).
@@ -568,116 +569,73 @@ class Solution(NamedTuple):
     sub: Optional[tuple] = None
 
 
-class GroupedDifferences(eqx.Module):
-    """The Jacobian of :class:`LevenbergMarquardtFD` (module docstring, "Jacobian"), reduced straight
-    to the normal equations (:func:`normal_equations`).
+# a compiled solve's traced program, which returns a Solution, is kept across processes
+# (matfit.cache.persistent_jit: jax.export serializes only the pytree types it was told of)
+jax.export.register_namedtuple_serialization(Solution, serialized_name="matfit.fitting.lm.Solution")
+
+
+class LevenbergMarquardtFD(eqx.Module):
+    """Levenberg-Marquardt on streamed normal equations: the algorithm of the module docstring
+    (Jacobian, steps, damping, stopping) in one solver; its options are its fields, described
+    at :func:`lm_fd`.
 
     Parameters
     ----------
+    rtol, atol : float
+    max_steps : int, default 100
     central : bool, optional
+    max_reject : int, default 12
+    tau : float, default 1e-3
+    max_step : float, default 3.0
+    wide, extrapolate, secant : bool, default False
         As for :func:`lm_fd`.
 
     Examples
     --------
-    >>> import jax.numpy as jnp
-    >>> from matfit.fitting.lm import GroupedDifferences
-    >>> GroupedDifferences().is_central(jnp.float32), GroupedDifferences().evaluations(2, jnp.float64)
-    (True, 2)
+    >>> import numpy as np, jax.numpy as jnp
+    >>> from matfit.fitting.lm import LevenbergMarquardtFD
+    >>> x = jnp.linspace(0.0, 1.0, 20)
+    >>> res = LevenbergMarquardtFD(1e-8, 1e-10).minimise(lambda z, x: (z[0] * x - 2 * x)[:, None], jnp.array([0.0]), x,
+    ...                                                  np.eye(1), np.ones((1, 1)))
+    >>> round(float(res.z[0]), 6), bool(res.converged)
+    (2.0, True)
     """
 
+    rtol: float = eqx.field(static=True)
+    atol: float = eqx.field(static=True)
+    max_steps: int = eqx.field(default=100, static=True)
     central: Optional[bool] = eqx.field(default=None, static=True)
+    max_reject: int = eqx.field(default=12, static=True)
+    tau: float = eqx.field(default=1e-3, static=True)
+    max_step: float = eqx.field(default=3.0, static=True)
+    wide: bool = eqx.field(default=False, static=True)
+    extrapolate: bool = eqx.field(default=False, static=True)
+    secant: bool = eqx.field(default=False, static=True)
 
     def is_central(self, dtype) -> bool:
-        """Whether differences are central for parameters of ``dtype``."""
+        """Whether differences are central for parameters of ``dtype`` (default: in float32)."""
         return (jnp.dtype(dtype) == jnp.float32) if self.central is None else bool(self.central)
 
     def evaluations(self, n_groups, dtype) -> int:
         """Model evaluations per Jacobian beyond the point's residuals (twice ``n_groups`` when central)."""
         return 2 * n_groups if self.is_central(dtype) else n_groups
 
-    def __call__(self, fn, z, args, seeds, owner, r=None, F=None, wide=False):
-        return normal_equations(fn, z, args, seeds, owner, self.is_central(z.dtype), r=r, F=F, wide=wide)
+    def _jacobian(self, fn, z, args, seeds, owner, r=None, F=None):
+        """``(F, J^T J, J^T r, r)`` at ``z`` by grouped differences (module docstring, "Jacobian")."""
+        return normal_equations(fn, z, args, seeds, owner, self.is_central(z.dtype), r=r, F=F, wide=self.wide)
 
-
-class BoxedDampedStep(eqx.Module):
-    """The descent of :class:`LevenbergMarquardtFD` (module docstring, "Steps"): the damped
-    Gauss-Newton step ``(J^T J + mu D) delta = -J^T r`` with no coordinate beyond ``max_step``.
-
-    Parameters
-    ----------
-    max_step : float, default 3.0
-        As for :func:`lm_fd`.
-
-    Examples
-    --------
-    >>> import jax.numpy as jnp
-    >>> from matfit.fitting.lm import BoxedDampedStep
-    >>> d = BoxedDampedStep(1.0)(jnp.eye(2), jnp.asarray(0.0), jnp.ones(2), jnp.array([-5.0, 0.5]))
-    >>> [round(float(x), 6) for x in d]
-    [1.0, -0.5]
-    """
-
-    max_step: float = eqx.field(default=3.0, static=True)
-
-    def __call__(self, A, mu, D, g):
+    def _step(self, A, mu, D, g):
+        """The damped Gauss-Newton step ``(J^T J + mu D) delta = -J^T r``, no coordinate beyond ``max_step``."""
         eye = jnp.eye(A.shape[-1], dtype=A.dtype)
         return _box_step(A + mu * D * eye, g, self.max_step)
 
-
-class NielsenDamping(eqx.Module):
-    """The damping schedule of :class:`LevenbergMarquardtFD` (Nielsen 1999; module docstring, "Steps").
-
-    Parameters
-    ----------
-    tau : float, default 1e-3
-        As for :func:`lm_fd`.
-
-    Examples
-    --------
-    >>> import jax.numpy as jnp
-    >>> from matfit.fitting.lm import NielsenDamping
-    >>> mu, nu = NielsenDamping().update(jnp.asarray(1.0), jnp.asarray(2.0), jnp.asarray(False), jnp.asarray(0.0))
-    >>> float(mu), float(nu)  # rejected: mu <- mu nu, nu <- 2 nu
-    (2.0, 4.0)
-    """
-
-    tau: float = eqx.field(default=1e-3, static=True)
-
-    def init(self, dtype):
-        """``(mu, nu) = (tau, 2)`` before the first step."""
-        return jnp.asarray(self.tau, dtype), jnp.asarray(2.0, dtype)
-
-    def update(self, mu, nu, accepted, rho):
-        """``(mu, nu)`` after a trial step, ``accepted`` or not, of gain ratio ``rho``."""
+    def _damping(self, mu, nu, accepted, rho):
+        """Nielsen's (1999) ``(mu, nu)`` after a trial step, ``accepted`` or not, of gain ratio ``rho``."""
         mu = jnp.where(accepted, mu * jnp.maximum(1 / 3, 1 - (2 * rho - 1) ** 3), mu * nu)
         return mu, jnp.where(accepted, 2.0, 2 * nu)
 
-
-class StepTermination(eqx.Module):
-    """The stopping tests of :class:`LevenbergMarquardtFD` (module docstring, "Stopping").
-
-    Parameters
-    ----------
-    rtol, atol, max_reject
-        As for :func:`lm_fd`.
-
-    Examples
-    --------
-    >>> import jax.numpy as jnp
-    >>> from matfit.fitting.lm import StepTermination
-    >>> bool(StepTermination(1e-8, 1e-10).at_start(jnp.zeros(3)))
-    True
-    """
-
-    rtol: float = eqx.field(static=True)
-    atol: float = eqx.field(static=True)
-    max_reject: int = eqx.field(default=12, static=True)
-
-    def at_start(self, g):
-        """True when the gradient ``g`` at the start is already at most ``atol``."""
-        return jnp.max(jnp.abs(g)) <= self.atol
-
-    def __call__(self, s, delta, F_new, F_c, pred, rho, accepted, g, rejects):
+    def _stops(self, s, delta, F_new, F_c, pred, rho, accepted, g, rejects):
+        """Whether the loop ends after this trial step (module docstring, "Stopping")."""
         f_tol = max(self.rtol, 4 * float(jnp.finfo(s.z.dtype).eps))
         # Either test ends the loop after a step the quadratic model predicted well (scipy's
         # ftol/xtol rule); the objective's test cannot ask for less than the dtype resolves.
@@ -697,50 +655,18 @@ class StepTermination(eqx.Module):
         return ((accepted & (((small_f | small_z) & (rho > 0.25)) | small_g)) | flat_f | tiny_step
                 | (rejects >= self.max_reject))
 
-
-class LevenbergMarquardtFD(eqx.Module):
-    """Levenberg-Marquardt on streamed normal equations (the module docstring), composed of its
-    parts: a Jacobian, a descent, a damping schedule and a termination.
-
-    Parameters
-    ----------
-    jacobian : GroupedDifferences
-    descent : BoxedDampedStep
-    damping : NielsenDamping
-    termination : StepTermination
-    extrapolate, secant : bool, default False
-        As for :func:`lm_fd`.
-
-    Examples
-    --------
-    >>> import numpy as np, jax.numpy as jnp
-    >>> from matfit.fitting.lm import (BoxedDampedStep, GroupedDifferences, LevenbergMarquardtFD, NielsenDamping,
-    ...                                StepTermination)
-    >>> solver = LevenbergMarquardtFD(GroupedDifferences(), BoxedDampedStep(), NielsenDamping(), StepTermination(1e-8, 1e-10))
-    >>> x = jnp.linspace(0.0, 1.0, 20)
-    >>> res = solver.minimise(lambda z, x: (z[0] * x - 2 * x)[:, None], jnp.array([0.0]), x, np.eye(1), np.ones((1, 1)))
-    >>> round(float(res.z[0]), 6), bool(res.converged)
-    (2.0, True)
-    """
-
-    jacobian: GroupedDifferences
-    descent: BoxedDampedStep
-    damping: NielsenDamping
-    termination: StepTermination
-    extrapolate: bool = eqx.field(default=False, static=True)
-    secant: bool = eqx.field(default=False, static=True)
-
-    def minimise(self, fn, z0, args, seeds, owner, max_steps=100, wide=False, warm=None) -> Solution:
+    def minimise(self, fn, z0, args, seeds, owner, warm=None) -> Solution:
         """Minimize ``0.5 |fn(z, args)|^2`` from ``z0`` (the arguments as for :func:`lm_fd`)."""
         z0 = jnp.asarray(z0)
         dt = z0.dtype
-        per_jac = self.jacobian.evaluations(len(seeds), dt)
+        max_steps = self.max_steps
+        per_jac = self.evaluations(len(seeds), dt)
         # The start's normal equations are computed by the loop's first pass (``fresh``), in the
         # same evaluations as every accepted step's: the model appears in the compiled program
         # once per evaluation site, and compilation, not the solve, is most of a small fit's time.
-        F0, A0, g0, r0 = jax.eval_shape(lambda: self.jacobian(fn, z0, args, seeds, owner, wide=wide))
+        F0, A0, g0, r0 = jax.eval_shape(lambda: self._jacobian(fn, z0, args, seeds, owner))
         blank = lambda x: jnp.zeros(x.shape, x.dtype)  # noqa: E731  (overwritten by the first pass)
-        mu0, nu0 = self.damping.init(dt)
+        mu0, nu0 = jnp.asarray(self.tau, dt), jnp.asarray(2.0, dt)
         if warm is not None:
             mu0 = jnp.asarray(warm.mu, mu0.dtype)
         s = _State(z0, jnp.asarray(jnp.inf, F0.dtype), blank(A0), blank(g0), jax.tree_util.tree_map(blank, r0), mu0, nu0,
@@ -761,26 +687,26 @@ class LevenbergMarquardtFD(eqx.Module):
                 Ha = s.A + s.S
                 H = jnp.where(s.aug & (jnp.linalg.eigvalsh(Ha + s.mu * jnp.diag(s.D))[0] > 0), Ha, s.A)
             # the first pass evaluates the start itself (no step) and takes its normal equations
-            delta = jnp.where(s.fresh, 0, self.descent(H, s.mu, s.D, s.g)).astype(dt)
+            delta = jnp.where(s.fresh, 0, self._step(H, s.mu, s.D, s.g)).astype(dt)
             r_new = fn(s.z + delta, args)
             F_new = half_sq(r_new)
             pred = (-jnp.dot(s.g, delta) - 0.5 * jnp.dot(delta, H @ delta)).astype(dt)
             rho = (s.F - F_new) / jnp.where(pred > 0, pred, jnp.inf)
             step_ok = ~s.fresh & jnp.isfinite(F_new) & (F_new < s.F) & (rho > 0) & jnp.all(jnp.isfinite(delta))
             acc = step_ok | s.fresh
-            mu, nu = self.damping.update(s.mu, s.nu, step_ok, rho)
+            mu, nu = self._damping(s.mu, s.nu, step_ok, rho)
             mu, nu = jnp.where(s.fresh, s.mu, mu), jnp.where(s.fresh, s.nu, nu)
             z_new = jnp.where(acc, s.z + delta, s.z)
             if self.extrapolate:
                 z_new, r_new, F_new = _extrapolated(fn, args, s, delta, z_new, r_new, F_new, step_ok & (rho > 1.25),
-                                                    self.descent.max_step)
+                                                    self.max_step)
             # A rejected step leaves z, and so the Jacobian, unchanged (under vmap both branches run).
             F_c, A, g, r = jax.lax.cond(
-                acc, lambda: self.jacobian(fn, z_new, args, seeds, owner, r=r_new, F=F_new, wide=wide),
+                acc, lambda: self._jacobian(fn, z_new, args, seeds, owner, r=r_new, F=F_new),
                 lambda: (s.F, s.A, s.g, s.r))
             rejects = jnp.where(acc, 0, s.rejects + 1)
-            stop = jnp.where(s.fresh, self.termination.at_start(g),
-                             self.termination(s, delta, F_new, F_c, pred, rho, step_ok, g, rejects))
+            stop = jnp.where(s.fresh, jnp.max(jnp.abs(g)) <= self.atol,  # a start already at the minimum
+                             self._stops(s, delta, F_new, F_c, pred, rho, step_ok, g, rejects))
             S, aug = s.S, s.aug
             if self.secant:
                 S, aug = _secant_update(s, z_new - s.z, g, F_c, step_ok)
@@ -801,9 +727,9 @@ class LevenbergMarquardtFD(eqx.Module):
 
 def lm_fd(fn, z0, args, seeds, owner, max_steps=100, rtol=1e-8, atol=1e-10, central=None, max_reject=12,
           tau=1e-3, max_step=3.0, wide=False, extrapolate=False, secant=False, warm=None) -> Solution:
-    """Minimize ``0.5 |fn(z, args)|^2`` from ``z0`` with a :class:`LevenbergMarquardtFD` built from
-    these options (the algorithm: the module docstring). This is where the solver's options are
-    described; its parts and ``method="lm_fd"`` refer here.
+    """Minimize ``0.5 |fn(z, args)|^2`` from ``z0`` with a :class:`LevenbergMarquardtFD` of these
+    options (the algorithm: the module docstring). This is where the solver's options are
+    described; the solver and ``method="lm_fd"`` refer here.
 
     Parameters
     ----------
@@ -859,6 +785,5 @@ def lm_fd(fn, z0, args, seeds, owner, max_steps=100, rtol=1e-8, atol=1e-10, cent
     >>> np.round(np.asarray(res.z), 6).tolist(), bool(res.converged)
     ([2.0, 1.5], True)
     """
-    solver = LevenbergMarquardtFD(GroupedDifferences(central), BoxedDampedStep(max_step), NielsenDamping(tau),
-                                  StepTermination(rtol, atol, max_reject), extrapolate, secant)
-    return solver.minimise(fn, z0, args, seeds, owner, max_steps=max_steps, wide=wide, warm=warm)
+    solver = LevenbergMarquardtFD(rtol, atol, max_steps, central, max_reject, tau, max_step, wide, extrapolate, secant)
+    return solver.minimise(fn, z0, args, seeds, owner, warm=warm)

@@ -35,7 +35,7 @@ import jax
 import jax.numpy as jnp
 
 from ..errors import ParameterError
-from .lm import Solution, lm_fd
+from .lm import LevenbergMarquardtFD, Solution
 
 __all__ = ["Method", "METHODS", "DEFAULT_METHOD", "get_method", "AbstractSolver", "Solution", "LMFDSolver",
            "OptimistixLeastSquares", "OptimistixBFGS", "JaxoptLBFGS", "JaxoptLM"]
@@ -99,8 +99,8 @@ class AbstractSolver(eqx.Module):
 
 
 class LMFDSolver(AbstractSolver):
-    """``lm_fd``: :class:`~matfit.fitting.lm.LevenbergMarquardtFD` through
-    :func:`~matfit.fitting.lm.lm_fd`, which describes its options.
+    """``lm_fd``: :class:`~matfit.fitting.lm.LevenbergMarquardtFD` (its options described at
+    :func:`~matfit.fitting.lm.lm_fd`).
 
     Parameters
     ----------
@@ -123,8 +123,9 @@ class LMFDSolver(AbstractSolver):
     normal_equations: ClassVar[bool] = True
 
     def solve(self, fn, z0, args, groups=None, warm=None) -> Solution:
-        return lm_fd(fn, z0, args, *groups, max_steps=self.max_steps, rtol=self.rtol, atol=self.atol, wide=self.wide,
-                     extrapolate=self.large_residual, secant=self.large_residual, warm=warm)
+        solver = LevenbergMarquardtFD(self.rtol, self.atol, self.max_steps, wide=self.wide,
+                                      extrapolate=self.large_residual, secant=self.large_residual)
+        return solver.minimise(fn, z0, args, *groups, warm=warm)
 
 
 _OPTX_LS = {"lm": "LevenbergMarquardt", "gn": "GaussNewton", "dogleg": "Dogleg"}
