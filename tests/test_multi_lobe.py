@@ -44,7 +44,7 @@ from catalogue import unit  # noqa: E402
 from matfit import Table  # noqa: E402
 from matfit.errors import ParameterError  # noqa: E402
 from matfit.fast import eval_soa, soa_pairs, supports_soa  # noqa: E402
-from matfit.fitting import (FAMILIES, Lobe, Param, Parametrization, TruthMap, compose_family, fit,  # noqa: E402
+from matfit.fitting import (FAMILIES, METAL_ETA_RANGE, METAL_K_RANGE, Lobe, Param, Parametrization, TruthMap, compose_family, fit,  # noqa: E402
                             initial_guess)
 from matfit.models import DiffuseSpecular, MultiLobe, RoughConductor, SpecularLobe  # noqa: E402
 
@@ -330,7 +330,7 @@ def _p(name, lo, hi, per_channel=False, doc="", generic=None, physical=(False, F
 
 
 _ALPHA = _p("alpha", 1e-3, 1.5, False, "GGX width", 0.2)
-_METAL = (_p("eta", 0.05, 8.0, True, "real index", 1.0), _p("k", 0.0, 12.0, True, "extinction", 3.0, (True, False)))
+_METAL = (_p("eta", *METAL_ETA_RANGE, True, "real index", 1.0), _p("k", *METAL_K_RANGE, True, "extinction", 3.0, (True, False)))
 #: the families as they were before the composed ones were added (params, doc, constant starts, truth)
 EXISTING = {
     "lambert": ((_p("albedo", 0.0, 1.0, True, "diffuse albedo", 0.5, (True, True)),), "Lambertian diffuse", {},
@@ -347,7 +347,8 @@ EXISTING = {
                  _p("eta", 1.05, 3.0, False, "coat index", 1.5)), "Lambertian base under a rough coat", {"eta": 1.5},
                 TruthMap("Plastic")),
     "car_paint": ((_p("alpha_base", 1e-3, 1.5, False, "metal GGX width", 0.2),
-                   _p("eta_base", 0.05, 8.0, True, "metal index", 1.0), _p("k_base", 0.0, 12.0, True, "metal extinction", 3.0, (True, False)),
+                   _p("eta_base", *METAL_ETA_RANGE, True, "metal index", 1.0),
+                   _p("k_base", *METAL_K_RANGE, True, "metal extinction", 3.0, (True, False)),
                    _p("alpha_coat", 1e-3, 1.0, False, "coat GGX width", 0.1),
                    _p("eta_coat", 1.05, 2.5, False, "coat index", 1.5)), "rough metal under a rough clear coat", {},
                   TruthMap("CoatedConductor")),

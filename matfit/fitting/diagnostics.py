@@ -70,7 +70,8 @@ def _standardized(r, scale, data_scale, fit_var=None):
     best = None
     models = [("additive noise", None)]  # the residuals as they are: no array of ones to divide by
     if scale is not None:
-        m = max(float(_median_of_copy(scale)), 1e-300)  # a zero value keeps a finite scale
+        # a zero value keeps a positive scale: the floor's square (below) stays a normal number of r's dtype
+        m = max(float(_median_of_copy(scale)), 1e3 * float(np.sqrt(np.finfo(r.dtype).tiny)))
         base = scale.astype(r.dtype, copy=False)
         for lam in NOISE_FLOORS:
             s = np.sqrt(base * base + (max(lam, 1e-3) * m) ** 2)
