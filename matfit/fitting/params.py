@@ -171,22 +171,21 @@ class Parametrization:
         """``{name: value}`` of the free parameters at unconstrained ``z`` (..., size)."""
         return self._pieces(z, lambda p, v: p.from_unconstrained(v))
 
-    def theta_vector(self, z):
-        """Natural values as a flat vector, in the layout of ``z``."""
+    def _flat_map(self, vec, f):
+        """``f(param, piece)`` over each free parameter's piece of the flat ``vec`` (..., size), concatenated."""
         parts, i = [], 0
         for p, n in zip(self.free, self.sizes):
-            parts.append(p.from_unconstrained(z[..., i:i + n]))
+            parts.append(f(p, vec[..., i:i + n]))
             i += n
         return jnp.concatenate(parts, axis=-1)
 
+    def theta_vector(self, z):
+        """Natural values as a flat vector, in the layout of ``z``."""
+        return self._flat_map(z, lambda p, v: p.from_unconstrained(v))
+
     def z_vector(self, theta):
         """The inverse of :meth:`theta_vector` (each value clipped just inside its range)."""
-        theta = jnp.asarray(theta)
-        parts, i = [], 0
-        for p, n in zip(self.free, self.sizes):
-            parts.append(p.to_unconstrained(theta[..., i:i + n]))
-            i += n
-        return jnp.concatenate(parts, axis=-1)
+        return self._flat_map(jnp.asarray(theta), lambda p, v: p.to_unconstrained(v))
 
     def z_from_theta(self, theta):
         """The ``z`` of ``{name: value}``: per-channel values broadcast, a shared one takes their mean."""
