@@ -22,12 +22,12 @@ demo: $(STAMP)
 	$(PY) -m matfit info demo_out/demo_synth.npz
 
 test: $(STAMP)
-	$(PY) -m pytest -q -n 2 --dist loadfile tests matfit --doctest-modules
+	$(PY) -m pytest -q -n 2 --dist loadfile tests matfit docs/examples.md --doctest-modules --doctest-glob='*.md'
 
 # The quick tier while working (a few minutes): the tests marked `@pytest.mark.check` (one or a
-# few per test file) and the library's doctests.
+# few per test file), the library's doctests and docs/examples.md.
 check: $(STAMP)
-	$(PY) -m pytest -q -n 2 --dist loadfile -m check tests matfit --doctest-modules
+	$(PY) -m pytest -q -n 2 --dist loadfile -m check tests matfit docs/examples.md --doctest-modules --doctest-glob='*.md'
 
 bench: $(STAMP)
 	$(PY) benchmarks/run_all.py

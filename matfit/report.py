@@ -846,16 +846,7 @@ def param_table(result, truth_params=None, posterior=None):
     Returns
     -------
     str
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit import Table
-    >>> from matfit.fitting import fit
-    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
-    >>> r = fit(Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1)), model="lambert", starts=1)
-    >>> param_table(r, {"albedo": [np.pi * 0.1] * 3}).splitlines()[0].split()
-    ['parameter', 'value', 'std.', 'error', 'truth', 'error/se']
+        A header line and a line per free parameter (an example: ``docs/examples.md``).
     """
     head = f"  {'parameter':14s} {'value':>12s} {'std. error':>11s}"
     post = {}

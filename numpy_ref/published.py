@@ -214,11 +214,6 @@ def fresnel_cook(eta, c):
     numpy.ndarray
         ``1/2 (g - c)^2 / (g + c)^2 [1 + ((c (g + c) - 1) / (c (g - c) + 1))^2]`` with
         ``g = sqrt(max(eta^2 + c^2 - 1, 0))``, at least 0 (bbm's ``fresnel::cook``).
-
-    Examples
-    --------
-    >>> print(round(float(fresnel_cook(1.5, 1.0)), 6))  # ((eta - 1) / (eta + 1))^2 at normal incidence
-    0.04
     """
     eta, c = np.asarray(eta, dtype=np.float64), np.asarray(c, dtype=np.float64)
     g = np.sqrt(np.maximum(eta * eta + c * c - 1.0, 0.0))
@@ -241,11 +236,6 @@ def fresnel_schlick_f0(f0, c):
     -------
     numpy.ndarray
         The approximate reflectance.
-
-    Examples
-    --------
-    >>> print(float(fresnel_schlick_f0(0.04, 0.0)))
-    1.0
     """
     f0, c = np.asarray(f0, dtype=np.float64), np.asarray(c, dtype=np.float64)
     return f0 + (1.0 - f0) * (1.0 - c) ** 5
@@ -265,14 +255,6 @@ def half_diff_angles(wo, wi):
         Each (N,): the half vector ``h = (wi + wo) / |wi + wo|`` in spherical angles, and ``wi``
         seen from a frame rotated by ``-phi_h`` about z and then ``-theta_h`` about y (the MERL
         convention, ``wi`` = the light); ``phi_d`` in ``(-pi, pi]``.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> a = np.array([[0.6, 0.0, 0.8]]); b = np.array([[-0.6, 0.0, 0.8]])
-    >>> th, ph, td, pd = half_diff_angles(a, b)
-    >>> print(round(float(th[0]), 6), round(float(np.cos(td[0])), 6))
-    0.0 0.8
     """
     wo, wi = _dirs(wo, wi)
     s = wo + wi
@@ -312,13 +294,6 @@ def phong_mirror_lobe(wo, wi, ks, n):
     numpy.ndarray
         ``ks (n + 2) / (2 pi) max(0, reflect(wi).wo)^n`` (N, 3), ``reflect(v) = (-v_x, -v_y, v_z)``;
         0 below either horizon.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> f = phong_mirror_lobe(np.array([[0.6, 0.0, 0.8]]), np.array([[-0.6, 0.0, 0.8]]), 0.1, 10.0)
-    >>> print(round(float(f[0, 0]), 6), round(0.1 * 12 / (2 * np.pi), 6))
-    0.190986 0.190986
     """
     g = _Geo(wo, wi)
     ks = _rgb(ks, "ks")
@@ -337,8 +312,9 @@ class PublishedModel:
     kd : array_like
         Diffuse albedo (RGB), bbm's ``Lambertian(albedo)``.
     **values
-        The lobe's parameters by name: its RGB scale (the one named by :attr:`scale`) and single
-        values (a subclass's constructor names them).
+        The lobe's parameters by name: its RGB scale (the one named by :attr:`scale`; ``ks``, bbm's
+        ``albedo``, unless a subclass names another) and single values. A subclass's constructor
+        names them and documents those it adds to ``kd`` and ``ks``.
 
     Attributes
     ----------
@@ -353,14 +329,6 @@ class PublishedModel:
         error_b``), else None.
     conflicts : list of str
         Disagreements of other files with these parameters (see :func:`published_fits`).
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> m = NganWard(kd=[0.1, 0.2, 0.3], ks=0.0, alpha=0.1)
-    >>> d = np.array([[0.0, 0.0, 1.0]])
-    >>> print(round(float(m(d, d)[0, 1] * np.pi), 6))
-    0.2
     """
 
     bbm_name = ""
@@ -457,22 +425,10 @@ class LowCookTorrance(PublishedModel):
 
     Parameters
     ----------
-    kd : array_like
-        Diffuse albedo (RGB).
-    ks : array_like
-        Specular scale (RGB), bbm's ``albedo``.
     m : float
         Beckmann roughness (bbm's ``roughness``).
     eta : float
         Index of refraction.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> m = LowCookTorrance(kd=0.0, ks=1.0, m=0.2, eta=1.5)
-    >>> d = np.array([[0.0, 0.0, 1.0]])
-    >>> print(round(float(m(d, d)[0, 0]), 6), round(0.04 / (np.pi * 0.04), 6))  # D = 1/m^2, F = 0.04
-    0.31831 0.31831
     """
 
     bbm_name = "LowCookTorrance"
@@ -503,20 +459,10 @@ class LowAshikhminShirley(PublishedModel):
 
     Parameters
     ----------
-    kd, ks : array_like
-        Diffuse albedo and specular scale (RGB).
     n : float
         Sharpness (bbm's ``sharpness``).
     eta : float
         Index of refraction (bbm's ``fresnelReflectance``).
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> m = LowAshikhminShirley(kd=0.0, ks=1.0, n=100.0, eta=1.5)
-    >>> d = np.array([[0.0, 0.0, 1.0]])
-    >>> print(round(float(m(d, d)[0, 0]), 6), round(101 / (8 * np.pi) * 0.04, 6))
-    0.160746 0.160746
     """
 
     bbm_name = "LowAshikhminShirley"
@@ -530,37 +476,37 @@ class LowAshikhminShirley(PublishedModel):
         return _ashikhmin_shirley(g, self.n, fresnel_cook(self.eta, g.c))
 
 
-class LowSmooth(PublishedModel):
-    """Löw et al. 2012's smooth-surface ABC model (bbm ``LowSmooth``, ``include/bsdfmodel/lowsmooth.h``).
-
-    ``f = kd / pi + A (1 + B |Ip + Op|^2)^(-C) F(eta, c')`` with ``Ip, Op`` the (x, y) parts of
-    ``wi, wo``, ``c' = sqrt(max(0, 1 - |Ip - Op|^2 / 4))`` and the Cook-Torrance ``F``. No
-    shadowing term and no ``1/pi``: ``A`` is in 1/sr.
+class _LowABC(PublishedModel):
+    """Löw et al. 2012's two ABC models (:class:`LowSmooth`, :class:`LowMicrofacet`): their shared
+    parameters; a subclass gives the lobe.
 
     Parameters
     ----------
-    kd, A : array_like
-        Diffuse albedo and lobe scale (RGB).
+    A : array_like
+        Lobe scale (RGB).
     B, C : float
         Width and fall-off of the ABC curve.
     eta : float
         Index of refraction.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> m = LowSmooth(kd=0.0, A=2.0, B=100.0, C=1.0, eta=1.5)
-    >>> wo = np.array([[0.6, 0.0, 0.8]]); wi = np.array([[-0.6, 0.0, 0.8]])  # mirror pair
-    >>> print(round(float(m(wo, wi)[0, 0]), 6), round(float(2.0 * fresnel_cook(1.5, 0.8)), 6))
-    0.087789 0.087789
     """
 
-    bbm_name = "LowSmooth"
     params = ("A", "B", "C", "eta")
     scale = "A"
 
     def __init__(self, kd, A, B, C, eta):
         super().__init__(kd, A=A, B=B, C=C, eta=eta)
+
+
+class LowSmooth(_LowABC):
+    """Löw et al. 2012's smooth-surface ABC model (bbm ``LowSmooth``, ``include/bsdfmodel/lowsmooth.h``).
+
+    ``f = kd / pi + A (1 + B |Ip + Op|^2)^(-C) F(eta, c')`` with ``Ip, Op`` the (x, y) parts of
+    ``wi, wo``, ``c' = sqrt(max(0, 1 - |Ip - Op|^2 / 4))`` and the Cook-Torrance ``F``. No
+    shadowing term and no ``1/pi``: ``A`` is in 1/sr. Parameters ``kd, A, B, C, eta``
+    (:class:`_LowABC`).
+    """
+
+    bbm_name = "LowSmooth"
 
     def _lobe(self, g):
         """``(1 + B |Ip + Op|^2)^(-C) F(eta, c')``, the lobe without ``A``, (N,)."""
@@ -571,37 +517,15 @@ class LowSmooth(PublishedModel):
         return (1.0 + self.B * dp2) ** (-self.C) * fresnel_cook(self.eta, np.where(g.ok, cd, 1.0))
 
 
-class LowMicrofacet(PublishedModel):
+class LowMicrofacet(_LowABC):
     """Löw et al. 2012's microfacet ABC model as in its supplemental fits (bbm ``LowMicrofacetFit``,
     ``include/bsdfmodel/low.h`` -> ``lowmicrofacet.h``, ``include/ndf/low.h``).
 
     ``f = kd / pi + A S(cos_h) G F(eta, c) / (pi ci co)``, ``S = (1 + B (1 - cos_h))^(-C)``,
-    V-groove ``G``, Cook-Torrance ``F``.
-
-    Parameters
-    ----------
-    kd, A : array_like
-        Diffuse albedo and lobe scale (RGB).
-    B, C : float
-        Width and fall-off of the ABC curve.
-    eta : float
-        Index of refraction.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> m = LowMicrofacet(kd=0.0, A=1.0, B=10.0, C=2.0, eta=1.5)
-    >>> d = np.array([[0.0, 0.0, 1.0]])
-    >>> print(round(float(m(d, d)[0, 0]), 6), round(0.04 / np.pi, 6))  # S = 1, G = 1 at normal incidence
-    0.012732 0.012732
+    V-groove ``G``, Cook-Torrance ``F``. Parameters ``kd, A, B, C, eta`` (:class:`_LowABC`).
     """
 
     bbm_name = "LowMicrofacetFit"
-    params = ("A", "B", "C", "eta")
-    scale = "A"
-
-    def __init__(self, kd, A, B, C, eta):
-        super().__init__(kd, A=A, B=B, C=C, eta=eta)
 
     def _lobe(self, g):
         """``S G F / (pi ci co)``, the lobe without ``A``, (N,)."""
@@ -621,8 +545,8 @@ class BagherSGD(PublishedModel):
 
     Parameters
     ----------
-    kd, rho_s : array_like
-        Diffuse albedo and specular scale (RGB; bbm ``Lambertian.albedo``, ``Bagher.albedo``).
+    rho_s : array_like
+        Specular scale (RGB; bbm's ``Bagher.albedo``).
     alpha, p : array_like
         SGD width and shape (RGB).
     f0, f1 : array_like
@@ -632,16 +556,6 @@ class BagherSGD(PublishedModel):
     Lambda, c_g, k, theta0 : array_like
         The fitted shadowing approximation (RGB; bbm's ``Lambda``, ``c``, ``k``, ``theta0``,
         ``theta0`` in radians).
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> m = BagherSGD(kd=0.0, rho_s=1.0, alpha=0.1, p=0.5, f0=0.5, f1=0.0, K=1.0, Lambda=0.0, c_g=0.0,
-    ...               k=1.0, theta0=1.0)
-    >>> d = np.array([[0.0, 0.0, 1.0]])
-    >>> ref = np.exp(-0.1) / 0.1 ** 0.5 / np.pi * 0.5 / np.pi  # D(0) F(1) / pi
-    >>> print(round(float(m(d, d)[0, 0]), 6), round(float(ref), 6))
-    0.144958 0.144958
     """
 
     bbm_name = "Bagher"
@@ -722,20 +636,10 @@ class NganCookTorrance(PublishedModel):
 
     Parameters
     ----------
-    kd, ks : array_like
-        Diffuse albedo and specular scale (RGB).
     f0 : float
         Schlick's reflectance at normal incidence (bbm's ``eta``, typed as a reflectance).
     m : float
         Beckmann roughness.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> m = NganCookTorrance(kd=0.0, ks=1.0, f0=0.05, m=0.2)
-    >>> d = np.array([[0.0, 0.0, 1.0]])
-    >>> print(round(float(m(d, d)[0, 0]), 6), round(0.05 / (np.pi ** 2 * 0.04), 6))
-    0.126651 0.126651
     """
 
     bbm_name = "NganCookTorrance"
@@ -757,20 +661,10 @@ class NganAshikhminShirley(PublishedModel):
 
     Parameters
     ----------
-    kd, ks : array_like
-        Diffuse albedo and specular scale (RGB).
     f0 : float
         Schlick's reflectance at normal incidence (bbm's ``fresnelReflectance``).
     n : float
         Sharpness.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> m = NganAshikhminShirley(kd=0.0, ks=1.0, f0=0.1, n=100.0)
-    >>> d = np.array([[0.0, 0.0, 1.0]])
-    >>> print(round(float(m(d, d)[0, 0]), 6), round(101 / (8 * np.pi) * 0.1, 6))
-    0.401866 0.401866
     """
 
     bbm_name = "NganAshikhminShirley"
@@ -792,18 +686,8 @@ class NganBlinnPhong(PublishedModel):
 
     Parameters
     ----------
-    kd, ks : array_like
-        Diffuse albedo and specular scale (RGB).
     n : float
         Sharpness.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> m = NganBlinnPhong(kd=0.0, ks=1.0, n=10.0)
-    >>> d = np.array([[0.0, 0.0, 1.0]])
-    >>> print(round(float(m(d, d)[0, 0]), 6), round(12 / (2 * np.pi), 6))
-    1.909859 1.909859
     """
 
     bbm_name = "NganBlinnPhong"
@@ -824,18 +708,8 @@ class NganWard(PublishedModel):
 
     Parameters
     ----------
-    kd, ks : array_like
-        Diffuse albedo and specular albedo (RGB).
     alpha : float
         Roughness (bbm's ``roughness``).
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> m = NganWard(kd=0.0, ks=1.0, alpha=0.1)
-    >>> d = np.array([[0.0, 0.0, 1.0]])
-    >>> print(round(float(m(d, d)[0, 0]), 6), round(1 / (4 * np.pi * 0.01), 6))
-    7.957747 7.957747
     """
 
     bbm_name = "NganWard"
@@ -854,22 +728,8 @@ class NganWard(PublishedModel):
 class NganWardDuer(NganWard):
     """Ngan et al. 2005's Ward-Duer (bbm ``NganWardDuer``, ``include/bsdfmodel/wardduer.h``).
 
-    ``f = kd / pi + ks exp(-tan^2 th_h / alpha^2) / (4 pi alpha^2 ci co)``.
-
-    Parameters
-    ----------
-    kd, ks : array_like
-        Diffuse albedo and specular albedo (RGB).
-    alpha : float
-        Roughness.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> wo = np.array([[0.6, 0.0, 0.8]]); wi = np.array([[-0.6, 0.0, 0.8]])
-    >>> a = NganWard(0.0, 1.0, 0.1)(wo, wi)[0, 0]; b = NganWardDuer(0.0, 1.0, 0.1)(wo, wi)[0, 0]
-    >>> print(round(float(a / b), 6))  # sqrt(ci co)
-    0.8
+    ``f = kd / pi + ks exp(-tan^2 th_h / alpha^2) / (4 pi alpha^2 ci co)``; the parameters of
+    :class:`NganWard`.
     """
 
     bbm_name = "NganWardDuer"
@@ -885,20 +745,10 @@ class NganLafortune(PublishedModel):
 
     Parameters
     ----------
-    kd, ks : array_like
-        Diffuse albedo and lobe scale (RGB).
     cxy, cz : float
         Lafortune's coefficients (``Cxy = -Cz`` is a lobe about the mirror direction).
     n : float
         Sharpness.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> m = NganLafortune(kd=0.0, ks=1.0, cxy=-0.5, cz=0.5, n=50.0)
-    >>> wo = np.array([[0.6, 0.0, 0.8]]); wi = np.array([[-0.6, 0.0, 0.8]])  # mirror pair
-    >>> print(round(float(m(wo, wi)[0, 0]), 6), round(52 / (2 * np.pi), 6))
-    8.276057 8.276057
     """
 
     bbm_name = "NganLafortune"
@@ -922,20 +772,12 @@ class UndefinedModel(PublishedModel):
 
     Parameters
     ----------
-    kd : array_like
-        Diffuse albedo (RGB).
     bbm_name : str
         bbm's component name (``NganHe``).
     values : dict
         The specular component's parameters as published, ``{name: list of floats}``.
     reason : str
         Why the model is not evaluated.
-
-    Examples
-    --------
-    >>> m = UndefinedModel(0.1, "NganHe", {"roughness": [0.5]}, "ambiguous")
-    >>> print(m.values["roughness"][0])
-    0.5
     """
 
     def __init__(self, kd, bbm_name, values, reason):
@@ -1069,18 +911,6 @@ def read_bbm_long(path):
     ------
     PublishedFitError
         On a malformed file: the message names the file, the line and the field.
-
-    Examples
-    --------
-    >>> import tempfile, os
-    >>> text = "source,material,component,param,index,value\\n" + "".join(
-    ...     f"ngan_ward,x,{c},{p},{i},{v}\\n" for c, p, i, v in
-    ...     [("Lambertian", "albedo", 0, 0.1), ("Lambertian", "albedo", 1, 0.1), ("Lambertian", "albedo", 2, 0.1),
-    ...      ("NganWard", "albedo", 0, 0.05), ("NganWard", "albedo", 1, 0.05), ("NganWard", "albedo", 2, 0.05),
-    ...      ("NganWard", "roughness", 0, 0.1)])
-    >>> d = tempfile.mkdtemp(); p = os.path.join(d, "f.csv"); _ = open(p, "w").write(text)
-    >>> print(read_bbm_long(p)[("ngan_ward", "x")].alpha)
-    0.1
     """
     path = Path(path)
     raw = {}  # (source, material) -> {component: {param: {index: value}}}, first line
@@ -1166,15 +996,6 @@ def read_fit_file(path, source=None):
     ------
     PublishedFitError
         On a malformed line: the message names the file, the line and the field.
-
-    Examples
-    --------
-    >>> import tempfile, os
-    >>> d = tempfile.mkdtemp(); p = os.path.join(d, "ngan_ward.fit")
-    >>> _ = open(p, "w").write("# c\\nx = Aggregate(Lambertian(albedo = [0.1, 0.1, 0.1]), "
-    ...                        "NganWard(albedo = [0.05, 0.05, 0.05], roughness = 0.1))\\n")
-    >>> print(read_fit_file(p)["x"].alpha)
-    0.1
     """
     path = Path(path)
     source = source or path.stem
@@ -1276,15 +1097,6 @@ def read_sgd_csv(path):
     ------
     PublishedFitError
         On a malformed file, naming the file, the line and the field.
-
-    Examples
-    --------
-    >>> import tempfile, os
-    >>> cols = _SGD_COLS
-    >>> d = tempfile.mkdtemp(); p = os.path.join(d, "s.csv")
-    >>> _ = open(p, "w").write(",".join(cols) + "\\n" + ",".join(["x"] + ["0.5"] * (len(cols) - 1)) + "\\n")
-    >>> print(float(read_sgd_csv(p)["x"].published_error[0]))
-    0.5
     """
     def build(v):
         m = BagherSGD(_ch(v, "rhoD"), _ch(v, "rhoS"), _ch(v, "alpha"), _ch(v, "p"), _ch(v, "f0"), _ch(v, "f1"),
@@ -1315,14 +1127,6 @@ def read_abc_csv(path):
     ------
     PublishedFitError
         On a malformed file, naming the file, the line and the field.
-
-    Examples
-    --------
-    >>> import tempfile, os
-    >>> d = tempfile.mkdtemp(); p = os.path.join(d, "a.csv")
-    >>> _ = open(p, "w").write(",".join(_ABC_COLS) + "\\nx,0.1,0.1,0.1,5,5,5,100,1.2,1.5\\n")
-    >>> print(read_abc_csv(p)["x"].B)
-    100.0
     """
     return _read_models(path, _ABC_COLS, "low_lowmicrofacet_E2",
                         lambda v: LowMicrofacet(_ch(v, "kD"), _ch(v, "A"), v["B"], v["C"], v["ior"]))
@@ -1379,14 +1183,6 @@ def published_fits(shared_dir, strict=False, rel_tol=5e-3):
         When a file is missing.
     PublishedFitError
         On malformed input (file, line and field named), or on a disagreement with ``strict=True``.
-
-    Examples
-    --------
-    >>> from pathlib import Path
-    >>> shared = Path("../shared")
-    >>> fits = published_fits(shared) if (shared / "data" / "published_fits").is_dir() else None
-    >>> print(fits is None or "red-plastic" in fits)
-    True
     """
     d = Path(shared_dir)
     if (d / "data" / "published_fits").is_dir():

@@ -3,6 +3,7 @@
 - A public module opens with a docstring (what it holds, the math where it has some).
 - A public class carries the math, its parameter table (Parameters or Attributes, when it takes
   any) and an Examples section that teaches.
+- Arguments are documented once: a class need not repeat those a base's table names (MRO).
 - A public function documents its arguments (Parameters, when it takes any) and what it returns
   (Returns, unless it returns None); an example where one teaches.
 - A public method needs a summary line; a one-line method gets a one-line docstring.
@@ -70,6 +71,31 @@ def _takes_arguments(fn, owner):
     return bool(params)
 
 
+def _section_names(parsed):
+    """The names a parsed docstring's Parameters and Attributes give (``a, b : float`` gives two)."""
+    return {n.strip().lstrip("*") for item in (*parsed["Parameters"], *parsed["Attributes"])
+            for n in item.name.split(",")}
+
+
+def inherited_names(cls):
+    """The argument names documented in the Parameters or Attributes of ``cls``'s base classes."""
+    names = set()
+    for base in cls.__mro__[1:]:
+        doc = base.__dict__.get("__doc__")
+        if doc:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                names |= _section_names(NumpyDocString(inspect.cleandoc(doc)))
+    return names
+
+
+def _init_arguments(cls):
+    """The constructor's argument names (a builtin ``__init__``'s ``**kwargs``, as ``ValueError``'s, aside)."""
+    params = list(inspect.signature(cls.__init__).parameters.values())[1:]
+    builtin = not inspect.isfunction(cls.__init__)
+    return {p.name for p in params if not (builtin and p.kind is p.VAR_KEYWORD)}
+
+
 def _returns_something(fn):
     ann = inspect.signature(fn).return_annotation
     return ann not in (None, "None")
@@ -111,7 +137,8 @@ def test_numpy_docstring(qualname, obj, owner):
             missing.append("Examples")
         init = obj.__init__
         takes = (init is not object.__init__ and _takes_arguments(init, obj)) or bool(getattr(obj, "__dataclass_fields__", None))
-        if takes and not (parsed["Parameters"] or parsed["Attributes"]):
+        inherited = _init_arguments(obj) <= inherited_names(obj)  # documented once, in a base class
+        if takes and not (parsed["Parameters"] or parsed["Attributes"]) and not inherited:
             missing.append("Parameters (or Attributes)")
     else:
         if _takes_arguments(obj, owner) and not parsed["Parameters"]:

@@ -203,21 +203,26 @@ def test_cli_compare(lambertian, cmp_lambertian, tmp_path, capsys):
     assert json.loads(js.read_text())["recommended"] == "lambert"
 
 
+def _fit_lambert(*options, table="ok.npz"):
+    """``matfit fit {dir}/<table> --model lambert <options>``."""
+    return ["fit", "{dir}/" + table, "--model", "lambert", *options]
+
+
 @pytest.mark.parametrize("argv, needle", [
-    (["fit", "{dir}/missing.npz", "--model", "lambert"], "no such file"),
-    (["fit", "{dir}/table.txt", "--model", "lambert"], "extension"),
-    (["fit", "{dir}/bad.npz", "--model", "lambert"], "npz"),
+    (_fit_lambert(table="missing.npz"), "no such file"),
+    (_fit_lambert(table="table.txt"), "extension"),
+    (_fit_lambert(table="bad.npz"), "npz"),
     (["fit", "{dir}/ok.npz", "--model", "nosuch"], "invalid choice"),
-    (["fit", "{dir}/ok.npz", "--model", "lambert", "--method", "newton"], "invalid choice"),
-    (["fit", "{dir}/ok.npz", "--model", "lambert", "--fixed", "eta"], "name=value"),
-    (["fit", "{dir}/ok.npz", "--model", "lambert", "--fixed", "eta=1.5"], "no parameter 'eta'"),
-    (["fit", "{dir}/ok.npz", "--model", "lambert", "--fixed", "albedo=abc"], "expected numbers"),
-    (["fit", "{dir}/ok.npz", "--model", "lambert", "--subsample", "0"], "positive integer"),
-    (["fit", "{dir}/ok.npz", "--model", "lambert", "--subsample", "1"], "usable residuals"),
+    (_fit_lambert("--method", "newton"), "invalid choice"),
+    (_fit_lambert("--fixed", "eta"), "name=value"),
+    (_fit_lambert("--fixed", "eta=1.5"), "no parameter 'eta'"),
+    (_fit_lambert("--fixed", "albedo=abc"), "expected numbers"),
+    (_fit_lambert("--subsample", "0"), "positive integer"),
+    (_fit_lambert("--subsample", "1"), "usable residuals"),
     (["compare", "{dir}/ok.npz", "--models", "lambert,nosuch"], "model must be one of"),
     (["compare", "{dir}/ok.npz", "--holdout", "1.5"], "fraction"),
     (["fit", "{dir}/ok.npz", "--fixed", "albedo=0.5"], "--model"),
-    (["fit", "{dir}/ok.npz", "--model", "lambert", "--candidates", "lambert"], "leave out --model"),
+    (_fit_lambert("--candidates", "lambert"), "leave out --model"),
     (["fit", "{dir}/ok.npz", "--candidates", "lambert,nosuch"], "unknown families"),
     (["export", "{dir}/missing.json", "--to", "gltf", "-o", "{dir}/x.gltf"], "no such file"),
     (["export", "{dir}/ok.npz", "--to", "gltf", "-o", "{dir}/x.gltf"], "not a JSON document"),

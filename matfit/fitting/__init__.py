@@ -1,4 +1,7 @@
-"""Fitting model families to measurement tables: parameters, losses, solvers, uncertainty."""
+"""Fitting model families to measurement tables: parameters, losses, solvers, uncertainty.
+
+A walk-through of the entry points on one table (fit, the choice of family, fit_batch, the
+posterior): ``docs/examples.md``, whose examples run as tests."""
 
 from .fit import (CHANNEL_RHO_REFIT, METHODS, NOISE_FLOOR, channel_correlation, REFIT_MIN_BATCH, REFIT_SIGMAS, REFIT_STARTS, SUSPECT_FACTOR, BatchFit, FitError, FitResult,
                   fit_arrays, fit_batch, guesses_from_arrays, initial_guess, initial_guesses, noise_level, refit_line, covariance, SANDWICH_MAX, LEVERAGE_MAX)

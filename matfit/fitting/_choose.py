@@ -394,19 +394,8 @@ def choose_family(table, reference="auto", candidates=None, loss=None, log=None,
     -------
     tuple
         The chosen :class:`~matfit.fitting.FitResult` (``choice`` set to the :class:`Choice`,
-        ``appearance`` to its :class:`~matfit.appearance.AppearanceDiff`) and the :class:`Choice`.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit import Table
-    >>> from matfit.models import Lambert
-    >>> rng = np.random.default_rng(1)
-    >>> wo = rng.normal(size=(60, 3)); wo[:, 2] = abs(wo[:, 2]); wo /= np.linalg.norm(wo, axis=1, keepdims=True)
-    >>> t = Table(wo=wo, wi=wo[::-1].copy(), values=np.full((60, 3), 0.4 / np.pi))
-    >>> r, c = choose_family(t, reference=Lambert(0.4), candidates=["lambert"], starts=1)
-    >>> c.chosen, c.judged_by, r.appearance.looks_alike
-    ('lambert', 'appearance', True)
+        ``appearance`` to its :class:`~matfit.appearance.AppearanceDiff`) and the :class:`Choice`
+        (an example: ``docs/examples.md``).
     """
     from ..models import measured_model
     from .families import FAMILIES

@@ -280,19 +280,7 @@ def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust
     Returns
     -------
     FitResult
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit import Table
-    >>> from matfit.fitting import fit
-    >>> rng = np.random.default_rng(0)
-    >>> wo = np.tile([0.0, 0.0, 1.0], (50, 1)); wi = rng.normal(size=(50, 3)); wi[:, 2] = abs(wi[:, 2])
-    >>> wi /= np.linalg.norm(wi, axis=1, keepdims=True)
-    >>> t = Table(wo=wo, wi=wi, values=np.full((50, 1), 0.3 / np.pi), channels="mono")
-    >>> r = fit(t, model="lambert", starts=1)
-    >>> round(float(r.params["albedo"][0]), 4)
-    0.3
+        The fit (examples: :class:`FitResult`, ``docs/examples.md``).
     """
     t0 = time.perf_counter()
     if not isinstance(table, Table):
@@ -434,17 +422,6 @@ def fit_batch(tables, model="plastic", method=DEFAULT_METHOD, loss="l2", fixed=N
         ``0.5 * sum`` of squared residuals per table.
     labels : list of str
         Names of the free parameters.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit import Table
-    >>> from matfit.fitting import fit_batch
-    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
-    >>> tables = [Table(wo=wo, wi=wi, values=np.full((3, 3), a / np.pi)) for a in (0.2, 0.4)]
-    >>> values, objective, labels = fit_batch(tables, model="lambert")
-    >>> [round(float(v), 4) for v in values[:, 0]], labels[0]
-    ([0.2, 0.4], 'albedo[0]')
     """
     if isinstance(tables, Table) or not hasattr(tables, "__len__"):
         raise ParameterError(f"fit_batch: tables must be a sequence of matfit.Table, got {type(tables).__name__}")
@@ -566,16 +543,7 @@ def fit_arrays(wo, wi, values, weight=None, *, model="plastic", method=DEFAULT_M
     Returns
     -------
     BatchFit
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit.fitting import fit_arrays
-    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
-    >>> values = np.array([0.1, 0.2])[:, None, None] * np.ones((2, 3, 3))  # two Lambertian tables
-    >>> r = fit_arrays(wo, wi, values, model="lambert")
-    >>> [round(float(a), 3) for a in r.values[:, 0] / np.pi]
-    [0.1, 0.2]
+        One row per table (an example: ``docs/examples.md``).
     """
     wo, wi, values = _check_stack(where, wo, wi, values, weight, valid)
     B, N, C = values.shape

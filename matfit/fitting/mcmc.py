@@ -91,12 +91,8 @@ NPZ_FORMAT = "matfit.posterior/1"
 
 
 class SamplingError(MatfitError):
-    """The sampler cannot run as asked (no finite starting point, ...).
-
-    Parameters
-    ----------
-    *args : object
-        One message naming the problem, as for :class:`~matfit.errors.MatfitError`.
+    """The sampler cannot run as asked (no finite starting point, ...); its message as for
+    :class:`~matfit.errors.MatfitError`.
 
     Examples
     --------
@@ -257,17 +253,17 @@ class LogProb:
 
     Examples
     --------
+    ``docs/examples.md`` finds a table's mode with one. With ``noise="fit"``, ``log s`` is the last
+    coordinate:
+
     >>> import numpy as np
     >>> from matfit import Table
-    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
-    >>> table = Table(wo=wo, wi=wi, values=np.full((3, 3), 0.1), sigma=np.full((3, 3), 0.01))
     >>> from matfit.fitting import make_log_prob
-    >>> lp = make_log_prob(table, model="lambert")
-    >>> lp.labels, lp(np.zeros((5, 3))).shape, np.ndim(lp(np.zeros(3)))
-    (['albedo[0]', 'albedo[1]', 'albedo[2]'], (5,), 0)
-    >>> z = np.repeat(np.linspace(-3, 3, 601)[:, None], 3, axis=1)  # equal albedos
-    >>> round(float(lp.to_natural(z)[np.argmax(lp(z)), 0]), 2)  # the mode: albedo = pi * 0.1
-    0.31
+    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]])
+    >>> mono = Table(wo=wo, wi=wo[::-1], values=np.full((3, 1), 0.1), channels="mono")
+    >>> lp = make_log_prob(mono, model="lambert", noise="fit")
+    >>> lp.labels, lp.ndim, lp(np.zeros((5, 2))).shape, np.ndim(lp(np.zeros(2)))
+    (['albedo[0]', 'noise_scale'], 2, (5,), 0)
     """
 
     def __init__(self, par, batched, to_natural, args, noise, prior_desc, block, dtype):

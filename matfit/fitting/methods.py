@@ -65,6 +65,8 @@ class AbstractSolver(eqx.Module):
     ----------
     rtol, atol : float
         Relative and absolute stopping tolerances.
+    max_steps : int, default 256
+        Most iterations.
 
     Examples
     --------
@@ -104,8 +106,10 @@ class LMFDSolver(AbstractSolver):
 
     Parameters
     ----------
-    rtol, atol : float
-        Stopping tolerances.
+    wide : bool, default False
+        ``lm_fd``'s ``wide``: the normal equations summed in float64.
+    large_residual : bool, default False
+        ``lm_fd``'s ``extrapolate`` and ``secant`` both on (for single large fits).
 
     Examples
     --------
@@ -136,8 +140,6 @@ class OptimistixLeastSquares(AbstractSolver):
 
     Parameters
     ----------
-    rtol, atol : float
-        Stopping tolerances.
     kind : {"lm", "gn", "dogleg"}
         ``optimistix.LevenbergMarquardt``, ``GaussNewton`` or ``Dogleg``.
 
@@ -180,17 +182,13 @@ class OptimistixLeastSquares(AbstractSolver):
 class OptimistixBFGS(AbstractSolver):
     """optimistix BFGS on ``0.5 |r|^2``.
 
-    Parameters
-    ----------
-    rtol, atol : float
-        Stopping tolerances.
-
     Examples
     --------
     >>> import jax.numpy as jnp
     >>> from matfit.fitting.methods import OptimistixBFGS
-    >>> round(float(OptimistixBFGS(1e-8, 1e-10, 50).solve(lambda z, a: z - a, jnp.zeros(1), jnp.ones(1)).z[0]), 5)
-    1.0
+    >>> sol = OptimistixBFGS(1e-8, 1e-10, 50).solve(lambda z, a: z[0] - a, jnp.zeros(1), jnp.array([1.0, 3.0]))
+    >>> round(float(sol.z[0]), 5)  # the minimum of 0.5 |r|^2: the mean
+    2.0
     """
 
     def solve(self, fn, z0, args, groups=None, warm=None) -> Solution:
@@ -204,17 +202,14 @@ class OptimistixBFGS(AbstractSolver):
 class JaxoptLBFGS(AbstractSolver):
     """jaxopt L-BFGS on ``0.5 |r|^2`` (its ``tol`` is ``atol``).
 
-    Parameters
-    ----------
-    rtol, atol : float
-        Stopping tolerances.
-
     Examples
     --------
-    >>> import jax.numpy as jnp
+    >>> import numpy as np, jax.numpy as jnp
     >>> from matfit.fitting.methods import JaxoptLBFGS
-    >>> round(float(JaxoptLBFGS(1e-8, 1e-10, 50).solve(lambda z, a: z - a, jnp.zeros(1), jnp.ones(1)).z[0]), 5)
-    1.0
+    >>> x = jnp.linspace(0.0, 1.0, 5)  # a line through five points: intercept 1, slope 2
+    >>> sol = JaxoptLBFGS(1e-8, 1e-8, 50).solve(lambda z, x: z[0] + z[1] * x - (1 + 2 * x), jnp.zeros(2), x)
+    >>> np.round(np.asarray(sol.z), 5).tolist()
+    [1.0, 2.0]
     """
 
     def solve(self, fn, z0, args, groups=None, warm=None) -> Solution:
@@ -230,19 +225,13 @@ class JaxoptLM(AbstractSolver):
     (``gtol``). Converged when a test ended the loop before ``max_steps`` (jaxopt's default test,
     a gradient norm below its own ``tol`` of 1e-3, would ignore both tolerances).
 
-    Parameters
-    ----------
-    rtol, atol : float
-        Stopping tolerances.
-    max_steps : int
-        Most iterations.
-
     Examples
     --------
     >>> import jax.numpy as jnp
     >>> from matfit.fitting.methods import JaxoptLM
-    >>> round(float(JaxoptLM(1e-8, 1e-10, 50).solve(lambda z, a: z - a, jnp.zeros(1), jnp.ones(1)).z[0]), 5)
-    1.0
+    >>> fn = lambda z, a: z - a  # two steps meet the tests: converged only with max_steps > 2
+    >>> [bool(JaxoptLM(1e-8, 1e-10, n).solve(fn, jnp.zeros(1), jnp.ones(1)).converged) for n in (2, 50)]
+    [False, True]
     """
 
     def solve(self, fn, z0, args, groups=None, warm=None) -> Solution:

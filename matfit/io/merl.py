@@ -173,9 +173,7 @@ def read_merl(path) -> MerlBRDF:
     MerlBRDF
         ``raw`` read-only, exactly the file's numbers.
     """
-    buf, src, file = read_source(path, FILE_SIZE + 1)
-    if len(buf) == 0:
-        raise data_error("file", f"{FILE_SIZE} bytes", "an empty file", file=file)
+    buf, src, file = read_source(path, FILE_SIZE + 1, expected=f"{FILE_SIZE} bytes")
     if len(buf) < 12:
         raise data_error("dims", "a 12-byte int32[3] header", f"{len(buf)} bytes (truncated)", file=file)
     dims = np.frombuffer(buf, dtype="<i4", count=3)

@@ -106,10 +106,8 @@ def read_tensor_file(path) -> TensorFile:
     TensorFile
         Every field, as a read-only view of the bytes read.
     """
-    buf, src, file = read_source(path)
+    buf, src, file = read_source(path, expected="a tensor file")
     size = len(buf)
-    if size == 0:
-        raise data_error("file", "a tensor file", "an empty file", file=file)
     if size < 18:
         raise data_error("header", "at least 18 bytes (magic, version, field count)", f"{size} bytes (truncated)", file=file)
     if buf[:12] != MAGIC:

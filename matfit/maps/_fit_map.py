@@ -280,16 +280,7 @@ def fit_map(wo, wi, values, model="diffuse_specular", mask=None, sigma=None, *, 
     Returns
     -------
     MapResult
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from matfit.maps import fit_map
-    >>> wo = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.6, 0.8]]); wi = wo[[1, 2, 0]]
-    >>> values = np.full((2, 2, 3, 3), 0.2)            # a 2 x 2 Lambertian capture, 3 images
-    >>> r = fit_map(wo, wi, values, model="lambert")
-    >>> r.params["albedo"].shape, round(float(r.params["albedo"][0, 0, 0]), 4)
-    ((2, 2, 3), 0.6283)
+        The parameter maps (an example: ``docs/examples.md``).
     """
     t0 = time.perf_counter()
     wo, wi, values, mask, valid = _check_inputs(wo, wi, values, mask, valid, sigma)

@@ -40,16 +40,11 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..fitting import get_family
+from ..render import srgb_encode
 from ._fit_map import MapResult
 from ._images import write_exr, write_png
 
 FORMATS = ("png", "exr", "gltf")
-
-
-def _srgb_encode(x):
-    import colour
-
-    return np.asarray(colour.cctf_encoding(np.clip(x, 0, 1), function="sRGB"))
 
 
 def _clean(a):
@@ -124,7 +119,7 @@ def _textured(name, base, fitted, metallic=None, alpha=None):
     given ``alpha``, the metallic-roughness texture (roughness = sqrt(alpha) in G, ``metallic`` in B).
     """
     base = np.where(fitted[..., None], np.clip(base, 0, 1), 0)
-    images = {"base_color.png": _srgb_encode(base)}
+    images = {"base_color.png": srgb_encode(base)}
     pbr = {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "baseColorTexture": {"index": 0}, "metallicFactor": 0.0}
     material = {"name": name, "pbrMetallicRoughness": pbr, "extensions": {}}
     notes = []
@@ -162,7 +157,7 @@ def _gltf_diffuse_specular(p, fitted, name):
     f0 = np.where(fitted[..., None], np.clip(_clean(p["f0"]), 0, 1), 0)
     top = float(np.clip(f0.max(), 1e-4, 0.98))
     s = np.sqrt(top)
-    images["specular_color.png"] = _srgb_encode(f0 / top)
+    images["specular_color.png"] = srgb_encode(np.clip(f0 / top, 0, 1))
     material["extensions"]["KHR_materials_ior"] = {"ior": float((1 + s) / (1 - s))}
     material["extensions"]["KHR_materials_specular"] = {"specularFactor": 1.0, "specularColorFactor": [1.0, 1.0, 1.0],
                                                         "specularColorTexture": {"index": 2}}

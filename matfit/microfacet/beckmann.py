@@ -84,18 +84,15 @@ class Beckmann(AbstractDistribution):
 
     Visible normals: stretch ``wo``, invert the alpha = 1 visible-slope CDF, rotate and unstretch.
 
-    Parameters
-    ----------
-    alpha_x, alpha_y : array_like
-        Widths, as for :class:`~matfit.microfacet.AbstractDistribution`.
-
     Examples
     --------
+    >>> import math
     >>> import jax.numpy as jnp
     >>> from matfit.microfacet import Beckmann
-    >>> d = Beckmann(0.5)
-    >>> round(float(d.D(jnp.array([0.0, 0.0, 1.0]))), 4)  # 1 / (pi alpha^2)
-    1.2732
+    >>> c = 1 / (0.5 * 4 / 3)  # 1 / (alpha tan theta_v) for v = (0.8, 0, 0.6)
+    >>> lam = (math.erf(c) - 1) / 2 + math.exp(-c * c) / (2 * c * math.sqrt(math.pi))
+    >>> round(float(Beckmann(0.5).Lambda(jnp.array([0.8, 0.0, 0.6]))), 6), round(lam, 6)
+    (0.002874, 0.002874)
     """
 
     has_visible_sampling = True

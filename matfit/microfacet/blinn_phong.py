@@ -30,11 +30,6 @@ class BlinnPhong(AbstractDistribution):
     Smith's Lambda is Beckmann's at the same alpha; keep alpha <= 1 (the exponent is negative
     beyond). No visible-normal sampling: :meth:`sample_dcos` only.
 
-    Parameters
-    ----------
-    alpha_x, alpha_y : array_like
-        Widths, as for :class:`~matfit.microfacet.AbstractDistribution`.
-
     Examples
     --------
     >>> import jax.numpy as jnp

@@ -33,18 +33,13 @@ class GGX(AbstractDistribution):
     Visible normals by the spherical caps of Dupuy & Benyoub (2023); :math:`G_1` without a division
     by :math:`v_z` (module docstring).
 
-    Parameters
-    ----------
-    alpha_x, alpha_y : array_like
-        Widths, as for :class:`~matfit.microfacet.AbstractDistribution`.
-
     Examples
     --------
     >>> import jax.numpy as jnp
     >>> from matfit.microfacet import GGX
-    >>> d = GGX(0.3)
-    >>> round(float(d.D(jnp.array([0.0, 0.0, 1.0]))), 4)  # 1 / (pi alpha^2)
-    3.5368
+    >>> v = jnp.array([0.6, 0.0, 0.8])  # alpha^2 tan^2 theta_v = 0.09 * 0.5625
+    >>> round(float(GGX(0.3).Lambda(v)), 6), round((-1 + (1 + 0.09 * 0.5625) ** 0.5) / 2, 6)
+    (0.0125, 0.0125)
     """
 
     has_visible_sampling = True

@@ -59,12 +59,14 @@ class DiffuseSpecular(AbstractMicrofacetBSDF, AbstractPairBSDF):
 
     Examples
     --------
+    The reflectance above 1 of the text (:math:`\cos\theta_o = 0.4`, :math:`\alpha = 0.1`,
+    :math:`\rho = F_0 = 0.5`):
+
     >>> import jax.numpy as jnp
     >>> from matfit.models import DiffuseSpecular
-    >>> m = DiffuseSpecular(jnp.array([0.5, 0.3, 0.2]), f0=0.04, alpha=0.2)
-    >>> up = jnp.array([0.0, 0.0, 1.0])
-    >>> m.eval(up, up).shape
-    (3,)
+    >>> wo = jnp.array([0.84 ** 0.5, 0.0, 0.4])
+    >>> [round(float(e), 3) for e in DiffuseSpecular(0.5, f0=0.5, alpha=0.1).albedo(wo)]
+    [1.013]
     """
 
     diffuse: jnp.ndarray = eqx.field(converter=as_channels)  # the albedo rho (``albedo`` is the method)

@@ -90,12 +90,14 @@ class GltfPBR(AbstractBSDF):
 
     Examples
     --------
+    A metal's Fresnel at normal incidence is its base colour, :math:`s(c, 1) = c`:
+
     >>> import jax.numpy as jnp
     >>> from matfit.models import GltfPBR
-    >>> m = GltfPBR(jnp.array([0.8, 0.2, 0.1]), metallic=0.0, alpha=0.25)
     >>> up = jnp.array([0.0, 0.0, 1.0])
-    >>> m.eval(up, up).shape
-    (3,)
+    >>> f = GltfPBR(jnp.array([0.8, 0.2, 0.1]), metallic=1.0, alpha=0.25).eval(up, up)
+    >>> [round(float(x), 4) for x in f / f[0] * 0.8]
+    [0.8, 0.2, 0.1]
     """
 
     base_color: jnp.ndarray = eqx.field(converter=as_channels)
