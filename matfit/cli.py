@@ -273,7 +273,7 @@ def build_parser():
     >>> args.command, args.model, args.starts, args.method == "mcmc"
     ('fit', 'lambert', 2, False)
     """
-    from .fitting import FAMILIES, LOSSES
+    from .fitting import COMPARE_FAMILIES, DEFAULT_LOSS, FAMILIES, LOSSES
     from .fitting.methods import DEFAULT_METHOD, METHODS
 
     p = _Parser(prog="matfit", description="Differentiable physically based material fitting.")
@@ -354,14 +354,14 @@ def build_parser():
     fm.set_defaults(func=_cmd_fit_map)
     co = sub.add_parser("compare", help="compare model families on a hold-out split")
     co.add_argument("table", help="table or measured file (.npz .csv .binary .bsdf .alta)")
-    co.add_argument("--models", default="lambert,conductor,plastic",
-                    help="comma-separated families (default lambert,conductor,plastic)")
+    co.add_argument("--models", default=",".join(COMPARE_FAMILIES),
+                    help=f"comma-separated families (default {','.join(COMPARE_FAMILIES)})")
     co.add_argument("--holdout", type=_fraction, default=0.2, help="hold-out fraction (default 0.2)")
     co.add_argument("--tol", type=float, default=0.02,
                     help="relative hold-out tolerance for preferring a simpler family (default 0.02)")
     co.add_argument("--method", default=DEFAULT_METHOD, choices=list(METHODS),
                     help=f"solver (default {DEFAULT_METHOD})")
-    co.add_argument("--loss", default="l2", choices=list(LOSSES), help="loss (default l2)")
+    co.add_argument("--loss", default=DEFAULT_LOSS, choices=list(LOSSES), help=f"loss (default {DEFAULT_LOSS})")
     co.add_argument("--fixed", nargs="+", action="extend", default=[], metavar="NAME=VALUE", help="as for fit (families that have it)")
     co.add_argument("--subsample", type=_positive_int, default=None, metavar="N", help="use N random valid rows")
     co.add_argument("--starts", type=_positive_int, default=4, help="number of starts (default 4)")

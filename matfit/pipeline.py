@@ -123,7 +123,7 @@ def run_pipeline(table, model=None, *, candidates=None, method=None, loss=None, 
         What every step produced; ``files`` lists ``report.md`` (when ``report`` is given), the
         model file, the exports and the comparison's JSON, in that order.
     """
-    from .fitting import DEFAULT_METHOD, robust_fit
+    from .fitting import DEFAULT_LOSS, DEFAULT_METHOD, robust_fit
 
     if not isinstance(table, Table):
         raise ParameterError(f"run_pipeline: table must be a matfit.Table, got {type(table).__name__}")
@@ -147,7 +147,7 @@ def run_pipeline(table, model=None, *, candidates=None, method=None, loss=None, 
         if truth is not None and truth.get("family") not in (None, model):
             truth = dict(truth, params=None)  # the truth's parameters belong to another family
     else:
-        loss = "l2" if loss is None else loss
+        loss = DEFAULT_LOSS if loss is None else loss
         result = robust_fit(table, model, method=method, loss=loss, fixed=fixed, tied=tied, starts=starts,
                             max_steps=max_steps, seed=seed)
     out = PipelineResult(result=result, truth=truth)

@@ -5,17 +5,17 @@ posterior): ``docs/examples.md``, whose examples run as tests."""
 
 from .fit import (CHANNEL_RHO_REFIT, METHODS, NOISE_FLOOR, channel_correlation, REFIT_MIN_BATCH, REFIT_SIGMAS, REFIT_STARTS, SUSPECT_FACTOR, BatchFit, FitError, FitResult,
                   fit_arrays, fit_batch, guesses_from_arrays, initial_guess, initial_guesses, noise_level, refit_line, covariance, SANDWICH_MAX, LEVERAGE_MAX)
-from .losses import LOSSES, residuals
+from .losses import DEFAULT_LOSS, LOSSES, residuals
 from .methods import DEFAULT_METHOD, Method, get_method
 from .families import (FAMILIES, METAL_ETA_RANGE, METAL_K_RANGE, REDUCE_TOL, Family, Lobe, Param, TruthMap, compose_family,
-                       family_describing, get_family, reduced_family)
+                       family_describing, get_family, reduced_family, DEFAULT_FAMILY, COMPARE_FAMILIES)
 from .params import Parametrization
 from ._problem import Problem
 
 __all__ = [
     "FAMILIES", "Family", "Param", "Parametrization", "TruthMap", "family_describing", "get_family", "Lobe",
-    "compose_family", "METAL_ETA_RANGE", "METAL_K_RANGE", "reduced_family", "REDUCE_TOL", "Problem",
-    "LOSSES", "residuals", "DEFAULT_METHOD", "Method", "get_method",
+    "compose_family", "METAL_ETA_RANGE", "METAL_K_RANGE", "reduced_family", "REDUCE_TOL", "Problem", "DEFAULT_FAMILY", "COMPARE_FAMILIES",
+    "DEFAULT_LOSS", "LOSSES", "residuals", "DEFAULT_METHOD", "Method", "get_method",
     "METHODS", "FitError", "FitResult", "fit", "fit_batch", "initial_guess", "initial_guesses",
     "BatchFit", "CHANNEL_RHO_REFIT", "channel_correlation", "fit_arrays", "guesses_from_arrays", "NOISE_FLOOR", "REFIT_MIN_BATCH", "REFIT_SIGMAS", "REFIT_STARTS", "SUSPECT_FACTOR",
     "refit_line", "noise_level", "covariance", "SANDWICH_MAX", "LEVERAGE_MAX",

@@ -14,12 +14,13 @@ from ..errors import ParameterError
 from ._problem import Problem
 from ._residuals import table_arrays
 from ._starts import fit_starts
+from .losses import DEFAULT_LOSS
 from .methods import METHODS
 
 __all__ = ["loss_history"]
 
 
-def loss_history(table, family, loss="l2", method="lm", starts=4, seed=0, max_steps=256, rtol=1e-8, atol=1e-10,
+def loss_history(table, family, loss=DEFAULT_LOSS, method="lm", starts=4, seed=0, max_steps=256, rtol=1e-8, atol=1e-10,
                  robust=None, robust_scale=1.0, fixed=None, tied=(), init=None, dtype=None):
     """Per-iteration objective of every start of a :func:`matfit.fitting.fit` call.
 

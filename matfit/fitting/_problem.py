@@ -17,7 +17,7 @@ from typing import Optional
 import numpy as np
 
 from .lm import column_groups
-from .losses import check_loss
+from .losses import DEFAULT_LOSS, check_loss
 from .params import Parametrization
 from ._residuals import objective_fn, prepared_residual_fn, split_residual_fn
 
@@ -61,7 +61,7 @@ class Problem:
     channels: int
     fixed: tuple = ()
     tied: tuple = ()
-    loss: str = "l2"
+    loss: str = DEFAULT_LOSS
     robust: Optional[str] = None
     robust_scale: float = 1.0
 
@@ -78,7 +78,7 @@ class Problem:
         -------
         Problem
         """
-        loss = "l2" if loss is None else loss
+        loss = DEFAULT_LOSS if loss is None else loss
         check_loss(loss, robust)
         try:
             problem = _interned(cls(family, int(channels), fixed_items(fixed), tuple(tied), loss, robust,

@@ -22,7 +22,8 @@ from ._conductor_guess import refine_conductor
 from ..models import CoatedConductor, DiffuseSpecular, Lambert, Plastic, RoughConductor, RoughDielectric, Sheen
 
 __all__ = ["Param", "TruthMap", "Family", "FAMILIES", "family_describing", "get_family", "Lobe", "compose_family",
-           "reduced_family", "REDUCE_TOL", "check_param_value", "METAL_ETA_RANGE", "METAL_K_RANGE"]
+           "reduced_family", "REDUCE_TOL", "check_param_value", "METAL_ETA_RANGE", "METAL_K_RANGE", "DEFAULT_FAMILY",
+           "COMPARE_FAMILIES"]
 
 
 @dataclass(frozen=True)
@@ -440,6 +441,11 @@ def get_family(name) -> Family:
 #: A lobe's weight (every channel) at or below this is no lobe; a width ratio within it of 1 is
 #: the previous lobe again (see :func:`reduced_family`).
 REDUCE_TOL = 1e-3
+#: The family of a batch fit or a posterior that names none (a single fit with none chooses; a map
+#: fits diffuse_specular).
+DEFAULT_FAMILY = "plastic"
+#: The families :func:`~matfit.fitting.compare_models` and ``matfit compare`` compare by default.
+COMPARE_FAMILIES = ("lambert", "conductor", "plastic")
 
 
 def reduced_family(family, params, tol=REDUCE_TOL):

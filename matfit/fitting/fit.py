@@ -34,9 +34,9 @@ from ._starts import (SCREEN_PER_START, compiled_helpers, fit_starts, guesses_fr
                       initial_guesses, screened_starts)
 from .diagnostics import diagnose
 from .lm import group_map
-from .losses import prepare_targets
+from .losses import DEFAULT_LOSS, prepare_targets
 from .methods import DEFAULT_METHOD, METHODS, get_method
-from .families import reduced_family
+from .families import DEFAULT_FAMILY, reduced_family
 from .params import check_solver_options
 
 __all__ = ["fit", "fit_batch", "fit_arrays", "FitResult", "FitError", "BatchFit", "initial_guess", "initial_guesses",
@@ -287,7 +287,7 @@ def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust
         raise ParameterError(f"fit: table must be a matfit.Table, got {type(table).__name__}")
     if model is None:  # matfit.fitting.fit (in _choose) chooses the family; this one fits a named one
         raise ParameterError("fit: name the family (model=...), or call matfit.fitting.fit to choose it")
-    loss = "l2" if loss is None else loss
+    loss = DEFAULT_LOSS if loss is None else loss
     get_method(method, "fit")
     check_solver_options("fit", starts=starts, max_steps=max_steps, rtol=rtol, atol=atol, robust_scale=robust_scale,
                          dtype=dtype)
@@ -402,7 +402,7 @@ def fit(table, model=None, method=DEFAULT_METHOD, loss=None, robust=None, robust
     )
 
 
-def fit_batch(tables, model="plastic", method=DEFAULT_METHOD, loss="l2", fixed=None, tied=(), starts=1, max_steps=128,
+def fit_batch(tables, model=DEFAULT_FAMILY, method=DEFAULT_METHOD, loss=DEFAULT_LOSS, fixed=None, tied=(), starts=1, max_steps=128,
               rtol=1e-8, atol=1e-10, dtype=None):
     """Fit many tables of the same shape (e.g. texels), each from its own data-driven starts, in
     one compiled program (:func:`fit_arrays`).
@@ -497,7 +497,7 @@ def _batch_programs(solve, par, shared):
     return to_z, run, post
 
 
-def fit_arrays(wo, wi, values, weight=None, *, model="plastic", method=DEFAULT_METHOD, loss="l2", fixed=None,
+def fit_arrays(wo, wi, values, weight=None, *, model=DEFAULT_FAMILY, method=DEFAULT_METHOD, loss=DEFAULT_LOSS, fixed=None,
                tied=(), starts=1, max_steps=128, rtol=1e-8, atol=1e-10, dtype=None, valid=None, known_sigma=False,
                uncertainty=True, refit=True, init=None, level=None, where="fit_arrays") -> BatchFit:
     r"""Fit one family to a stack of B small tables given as arrays, in one vectorized call.

@@ -37,12 +37,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["LOSSES", "ROBUST", "REL_EPS", "CBRT_DELTA", "check_loss", "residuals", "prepare_targets", "residuals_from_targets"]
+__all__ = ["DEFAULT_LOSS", "LOSSES", "ROBUST", "REL_EPS", "CBRT_DELTA", "check_loss", "residuals", "prepare_targets", "residuals_from_targets"]
 
 from .._math import safe_sqrt
 from ..errors import ParameterError
 
 LOSSES = ("l2", "e2", "cbrt", "cosine", "relative")
+#: The loss of a fit, a posterior or a comparison that names none (a family chosen by appearance
+#: uses :data:`~matfit.fitting._choose.CHOICE_LOSS`).
+DEFAULT_LOSS = "l2"
 ROBUST = (None, "huber", "cauchy")
 REL_EPS = 1e-3
 #: Offset of the cube-root loss: its slope at zero is (1/3) CBRT_DELTA^(-2/3), about 3e3.
@@ -68,7 +71,7 @@ def check_loss(loss, robust) -> None:
         raise ParameterError(f"robust must be one of {list(ROBUST)}, got {robust!r}")
 
 
-def residuals(pred, values, weight, cos_i, loss="l2", robust=None, scale=1.0):
+def residuals(pred, values, weight, cos_i, loss=DEFAULT_LOSS, robust=None, scale=1.0):
     """Residual vector (N, C) for predictions ``pred`` against ``values``: the same as
     ``residuals_from_targets(pred, *prepare_targets(values, weight, cos_i, loss), cos_i, loss,
     robust, scale)`` (a fit prepares the data's part once).
@@ -132,7 +135,7 @@ def _transform(x, cos_i, loss):
     return x
 
 
-def prepare_targets(values, weight, cos_i, loss="l2"):
+def prepare_targets(values, weight, cos_i, loss=DEFAULT_LOSS):
     """The data's part of :func:`residuals`, computed once per table: ``r = factor * (T(pred) -
     target)`` (0 where ``factor`` is 0), ``T`` the loss's transform (``log(1 + f cos_i)`` for
     ``"e2"``, ``cbrt(f cos_i + delta)`` for ``"cbrt"``, identity otherwise), ``factor`` ``sqrt(w)``
@@ -166,7 +169,7 @@ def prepare_targets(values, weight, cos_i, loss="l2"):
     return jnp.where(ok, _transform(values, cos_i, loss), 0), jnp.where(ok, sw, 0)
 
 
-def residuals_from_targets(pred, target, factor, cos_i, loss="l2", robust=None, scale=1.0):
+def residuals_from_targets(pred, target, factor, cos_i, loss=DEFAULT_LOSS, robust=None, scale=1.0):
     """Residuals from data prepared by :func:`prepare_targets`.
 
     Parameters

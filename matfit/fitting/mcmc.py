@@ -78,7 +78,8 @@ from ..errors import MatfitError, ParameterError
 from ..fast import supports_soa
 from ..table import Table
 from ._problem import Problem
-from .losses import prepare_targets, residuals_from_targets
+from .families import DEFAULT_FAMILY
+from .losses import DEFAULT_LOSS, prepare_targets, residuals_from_targets
 
 __all__ = ["PosteriorResult", "LogProb", "SamplingError", "make_log_prob", "sample_posterior", "NOISE_MODES"]
 
@@ -305,7 +306,7 @@ class LogProb:
         return th
 
 
-def make_log_prob(table, model="plastic", fixed=None, tied=(), loss="l2", noise="table", prior="uniform",
+def make_log_prob(table, model=DEFAULT_FAMILY, fixed=None, tied=(), loss=DEFAULT_LOSS, noise="table", prior="uniform",
                   noise_floor=None, block=None, dtype=None) -> LogProb:
     """The log-posterior :class:`LogProb` that :func:`sample_posterior` hands to emcee (the
     likelihood, priors and noise models are in the module docstring).
@@ -549,7 +550,7 @@ MOVES = {
 }
 
 
-def sample_posterior(table, model="plastic", fixed=None, tied=(), loss="l2", noise="table", prior="uniform",
+def sample_posterior(table, model=DEFAULT_FAMILY, fixed=None, tied=(), loss=DEFAULT_LOSS, noise="table", prior="uniform",
                      n_walkers=None, max_steps=20000, tau_factor=50, start=None, seed=0, progress=True,
                      chunk=200, burn_factor=5, thin=None, noise_floor=None, dtype=None,
                      moves="de") -> PosteriorResult:

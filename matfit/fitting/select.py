@@ -28,9 +28,9 @@ import numpy as np
 from ..errors import ParameterError
 from ..table import Table
 from .fit import FitError, fit, initial_guess
-from .losses import residuals
+from .losses import DEFAULT_LOSS, residuals
 from ._problem import Problem
-from .families import get_family
+from .families import COMPARE_FAMILIES, get_family
 
 __all__ = ["compare_models", "ModelComparison", "recommend", "robust_fit", "information_criteria", "DEFAULT_TOL"]
 
@@ -226,7 +226,7 @@ def information_criteria(rss, n, p):
     return ll + 2 * p, ll + p * math.log(n)
 
 
-def compare_models(table, models=("lambert", "conductor", "plastic"), holdout=0.2, seed=0, tol=DEFAULT_TOL,
+def compare_models(table, models=COMPARE_FAMILIES, holdout=0.2, seed=0, tol=DEFAULT_TOL,
                    **fit_kwargs) -> ModelComparison:
     """Fit each family in ``models`` with :func:`robust_fit` on a random ``1 - holdout`` of the rows
     and compare them; a family whose fit raises :class:`~matfit.fitting.FitError` gets a row with
@@ -279,7 +279,7 @@ def compare_models(table, models=("lambert", "conductor", "plastic"), holdout=0.
     if fit_part.n_valid == 0 or hold_part.n_valid == 0:
         raise FitError(f"compare_models: the split leaves {fit_part.n_valid} valid fit rows and {hold_part.n_valid} "
                        f"valid hold-out rows; both must be > 0")
-    loss = fit_kwargs.get("loss", "l2")
+    loss = fit_kwargs.get("loss", DEFAULT_LOSS)
     fixed_all = dict(fit_kwargs.pop("fixed", None) or {})
     tied_all = tuple(fit_kwargs.pop("tied", ()) or ())
     rows, results = [], {}
