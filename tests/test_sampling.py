@@ -351,6 +351,20 @@ def test_chi2(case):
 W_RTOL = 1e-4
 
 
+def check_sampled(r, n_cases):
+    """The sampling checks of a model file's own cases (:func:`run_case`'s result ``r``, one of
+    ``n_cases`` chi^2 tests): weight == f cos / pdf and the returned pdf == pdf(wo, wi), invalid
+    samples 0; the valid fraction equals int pdf (lobe samples below the horizon are the invalid
+    ones); the samples follow the pdf (chi^2, Bonferroni over the cases)."""
+    assert r.bad_invalid == 0 and "pdf(wo, wi) == 0" not in r.worst_sample, r.worst_sample
+    assert r.pdf_relerr < W_RTOL and r.w_relerr < W_RTOL, r.worst_sample
+    assert r.pdf_relerr_max < 1e-2 and r.w_relerr_max < 1e-2, r.worst_sample
+    sig = math.sqrt(max(r.frac_valid * (1 - r.frac_valid), 1.0 / r.n) / r.n)
+    assert r.integral <= 1 + 1e-3 + r.unresolved
+    assert abs(r.integral - r.frac_valid) <= 0.01 * r.integral + 5 * sig + r.unresolved
+    assert r.chi2.pvalue > 0.01 / n_cases, r.chi2.summary(8)
+
+
 @pytest.mark.parametrize("case", CASES, ids=CASE_IDS)
 def test_weight_consistency(case):
     r = run_case(case)
