@@ -7,7 +7,6 @@ comparisons and by the CLI fit (``--subsample 27``).
 
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest

@@ -26,7 +26,7 @@ from ..fast import supports_soa
 from ..parallel import device_count, pad_to_power_of_two
 from ..table import Table
 from . import _solver as solvers
-from ._memory import available_memory, check_memory, memory_estimate
+from ._memory import check_memory, memory_estimate
 from ._problem import Problem
 from ._result import BatchFit, FitError, FitResult
 from ._residuals import split_rows, table_arrays

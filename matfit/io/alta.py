@@ -88,7 +88,6 @@ class AltaData:
     def directions(self, theta_d: float | None = None, phi_d: float | None = None):
         """``(wo, wi)`` (N, 3) of the rows (geometry: the module docstring); ``theta_d``, ``phi_d`` override the slices' defaults."""
         x, p = self.x, self.param_in
-        n = x.shape[0]
         if p in ("COS_TH", "RUSIN_TH"):
             th = np.arccos(np.clip(x[:, 0], -1.0, 1.0)) if p == "COS_TH" else x[:, 0]
             return half_diff_to_dirs(th, 0.0 if theta_d is None else theta_d, 0.0 if phi_d is None else phi_d)
