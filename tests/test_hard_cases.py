@@ -40,9 +40,7 @@ WEIGHT_BOUND = 1e3
 DTYPES = {"f32": np.float32, "f64": np.float64}
 ALPHAS, ALPHAS_BP, ETAS, COND = C.ALPHAS_HARD, C.ALPHAS_HARD_BP, C.ETAS_HARD, C.CONDUCTORS_HARD
 GOLD_ETA, GOLD_K = C.GOLD_ETA, C.GOLD_K
-#: XLA's CPU compilation of these graphs dominates the file's runtime; optimization level 0
-#: compiles ~35 % faster (as in tests/test_layered.py), the programs run once
-FAST_COMPILE = {"xla_backend_optimization_level": 0}
+FAST_COMPILE = C.FAST_COMPILE  # the programs of this file run once
 
 # --------------------------------------------------------------------------------------------
 # Model structures: tests/catalogue.py (STRUCTURES: name -> Structure)

@@ -146,9 +146,8 @@ def p_delta_ref(name, wo):
 CHUNK = 1 << 15
 
 
-# XLA's CPU compilation of these graphs (the rough coat's transmittance table appears several times
-# per call) dominates the runtime; optimization level 0 compiles ~35 % faster.
-FAST_COMPILE = {"xla_backend_optimization_level": 0}
+# the rough coat's transmittance table appears several times per call: compilation dominates
+FAST_COMPILE = C.FAST_COMPILE
 
 
 @eqx.filter_jit(compiler_options=FAST_COMPILE)
