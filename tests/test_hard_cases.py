@@ -442,11 +442,7 @@ def test_reciprocity(name, dtn):
     sel, cases = _selected(s, s.reciprocal)
     assert sel.any()
     if name in STOCHASTIC:
-        # eval_with_error does not zero the pairs eval zeroes (a known bug, test_known_bug_* below):
-        # only reflection pairs above the surface
-        eps = inp["wo"].dtype.type(COS_EPS)
-        both = (inp["wo"][:, 2] > eps) & (inp["wi"][:, 2] > eps)
-        f, fr = out["f_est"][sel] * both[:, None], out["fr"][sel] * both[:, None]
+        f, fr = out["f_est"][sel], out["fr"][sel]
         # 5 standard errors, and 2e-3 1/sr where the walks from a grazing direction all reflect off
         # the coat (F ~ 1): an estimate of 0 with a standard error of 0 (0 against 1.7e-4)
         tol = 5 * np.hypot(out["f_se"][sel], out["fr_se"][sel]) + 2e-3
@@ -516,7 +512,7 @@ def test_pdf_integral(name, dtn):
 
 # --------------------------------------------------------------------------------------------
 # Known library bugs the matrix found (strict expected failures: an unexpected pass means a fix;
-# then drop the exception above, DIRECTION_GRADIENT_NAN or the masking of the reciprocity test)
+# then drop the exception above or DIRECTION_GRADIENT_NAN)
 # --------------------------------------------------------------------------------------------
 @pytest.mark.xfail(strict=True, reason="library bug: MeasuredRGL's and MeasuredMERL's gradients in the directions "
                    "are NaN where the half vector is the normal (wo == wi == n) or undefined (wo == -wi)")
@@ -528,17 +524,15 @@ def test_known_bug_measured_direction_gradients(name, dtn):
     assert np.isfinite(out["gwo"]).all() and np.isfinite(out["gwi"]).all()
 
 
-@pytest.mark.xfail(strict=True, reason="library bug: StochasticLayered.eval_with_error (documented as the estimate "
-                   "of eval and its error) is not zero where eval is: a direction below the surface (minimal: "
-                   "SmoothDielectric(1.5) over Lambert(0.5), wo = (0.6, 0, -0.8), wi = (0, 0.6, 0.8): eval 0, "
-                   "eval_with_error 0.024)")
-@pytest.mark.parametrize("name,dtn", matrix("known_bug", sorted(STOCHASTIC), dtypes=["f64"]))
-def test_known_bug_stochastic_eval_with_error_below_surface(name, dtn):
+@pytest.mark.parametrize("name,dtn", matrix("below_surface", sorted(STOCHASTIC), dtypes=["f64"]))
+def test_stochastic_eval_with_error_zero_below_surface(name, dtn):
+    """The estimate and its error are 0 wherever eval is (a direction below the surface: once 0.024)."""
     out, inp = results(name, dtn)
     eps = inp["wo"].dtype.type(COS_EPS)
     off = (inp["wo"][:, 2] <= eps) | (inp["wi"][:, 2] <= eps)
     assert (out["f"][:, off] == 0).all()
     assert (out["f_est"][:, off] == 0).all() and (out["fr"][:, off] == 0).all()
+    assert (out["f_se"][:, off] == 0).all() and (out["fr_se"][:, off] == 0).all()
 
 
 # --------------------------------------------------------------------------------------------

@@ -185,8 +185,9 @@ class _Warp(eqx.Module):
             i = jnp.clip(jnp.searchsorted(vals, p, side="right") - 1, 0, sizes[dim] - 2).astype(jnp.int32)
             w1 = jnp.clip((p - vals[i]) / (vals[i + 1] - vals[i]), 0, 1)
             idx = jnp.stack([i, i + 1], 1) * stride
-            slices = (slices[:, :, None] + idx[:, None, :]).reshape(n, -1)
-            w = (w[:, :, None] * jnp.stack([1 - w1, w1], 1)[:, None, :]).reshape(n, -1)
+            k = 2 * slices.shape[1]  # explicit: reshape(n, -1) cannot infer it for n == 0
+            slices = (slices[:, :, None] + idx[:, None, :]).reshape(n, k)
+            w = (w[:, :, None] * jnp.stack([1 - w1, w1], 1)[:, None, :]).reshape(n, k)
         return slices, w
 
     @staticmethod

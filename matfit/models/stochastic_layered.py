@@ -188,23 +188,20 @@ class StochasticLayered(AbstractBSDF):
 
     def eval(self, wo, wi, key=None):
         """Unbiased estimate of ``f`` from ``n_samples`` walks (0 unless a reflection pair above the surface)."""
+        return self.eval_with_error(wo, wi, key)[0]
+
+    def eval_with_error(self, wo, wi, key=None):
+        """``(estimate, stderr)``: the estimate of :meth:`eval` and its standard error, ``(..., C)`` each
+        (both 0 unless a reflection pair above the surface)."""
         check_directions("StochasticLayered.eval", wo=wo, wi=wi)
         key = jax.random.PRNGKey(0) if key is None else key
         wo = jnp.asarray(wo)
         wi = jnp.asarray(wi)
-        fcos = jnp.mean(self._walk(wo, wi, key, energy=False), axis=0)
-        ok = valid_reflection(wo, wi)
-        mu_i = jnp.where(ok, wi[..., 2], 1)
-        return jnp.where(ok[..., None], fcos / mu_i[..., None], 0)
-
-    def eval_with_error(self, wo, wi, key=None):
-        """``(estimate, stderr)``: the estimate of :meth:`eval` and its standard error, ``(..., C)`` each."""
-        key = jax.random.PRNGKey(0) if key is None else key
-        wo = jnp.asarray(wo)
-        wi = jnp.asarray(wi)
         c = self._walk(wo, wi, key, energy=False)
-        mu_i = jnp.maximum(jnp.abs(wi[..., 2]), COS_EPS)[..., None]
-        return jnp.mean(c, axis=0) / mu_i, jnp.std(c, axis=0) / jnp.sqrt(self.n_samples) / mu_i
+        ok = valid_reflection(wo, wi)[..., None]
+        mu_i = jnp.where(ok, wi[..., 2:3], 1)
+        return (jnp.where(ok, jnp.mean(c, axis=0) / mu_i, 0),
+                jnp.where(ok, jnp.std(c, axis=0) / jnp.sqrt(self.n_samples) / mu_i, 0))
 
     def albedo(self, wo, method="mc", n=None, key=None):
         """Directional albedo by the walk; ``method`` and ``n`` are not read (the count is ``n_samples``)."""
