@@ -39,6 +39,13 @@ def safe_sqrt(x):
     return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, 1)), 0)
 
 
+def safe_atan2(y, x):
+    """``atan2(y, x)``, the same values (``atan2(+-0, +-0)`` included), with a finite gradient at
+    the origin (0 there, where the angle is undefined)."""
+    ok = (x != 0) | (y != 0)
+    return jnp.where(ok, jnp.arctan2(jnp.where(ok, y, 0), jnp.where(ok, x, 1)), jax.lax.stop_gradient(jnp.arctan2(y, x)))
+
+
 def per_pair(x):
     """``x`` itself (bit for bit, gradient 1), ended by a division so that XLA computes it once per
     pair, in a loop of its own.

@@ -236,19 +236,10 @@ def test_finite_values(name, dtn):
         assert not bad.any(), _where_bad(bad, inp["cases"], f"{key} < 0")
 
 
-#: A known library bug (a strict expected failure below, test_known_bug_*): the
-#: measured models' gradients in the directions are NaN where the half vector is the normal or
-#: undefined (wo == wi == n, wo == -wi, and near them on the horizon); their parameters are
-#: constant tables (zero gradients), still checked.
-DIRECTION_GRADIENT_NAN = {"measured_rgl", "measured_merl"}
-
-
 @pytest.mark.parametrize("name,dtn", matrix("finite_grads"))
 def test_finite_gradients(name, dtn):
     out, inp = results(name, dtn)
     for key in ("gwo", "gwi"):
-        if name in DIRECTION_GRADIENT_NAN:
-            continue
         bad = ~np.isfinite(out[key])
         assert not bad.any(), _where_bad(bad, inp["cases"], f"d sum(eval) / d {key[1:]}")
     for j, leaf in enumerate(out["gm_leaves"]):
@@ -511,19 +502,9 @@ def test_pdf_integral(name, dtn):
 
 
 # --------------------------------------------------------------------------------------------
-# Known library bugs the matrix found (strict expected failures: an unexpected pass means a fix;
-# then drop the exception above or DIRECTION_GRADIENT_NAN)
+# Library bugs the matrix found, fixed (StochasticLayered.eval_with_error below the surface; the
+# measured models' direction gradients at h = n and wo = -wi are in test_finite_gradients)
 # --------------------------------------------------------------------------------------------
-@pytest.mark.xfail(strict=True, reason="library bug: MeasuredRGL's and MeasuredMERL's gradients in the directions "
-                   "are NaN where the half vector is the normal (wo == wi == n) or undefined (wo == -wi)")
-@pytest.mark.parametrize("name,dtn", matrix("known_bug", sorted(DIRECTION_GRADIENT_NAN), dtypes=["f64"]))
-def test_known_bug_measured_direction_gradients(name, dtn):
-    out, inp = results(name, dtn)
-    normal = np.all(inp["wo"] == [0, 0, 1], axis=-1) & np.all(inp["wi"] == [0, 0, 1], axis=-1)
-    assert normal.any() and (out["f"][:, normal] > 0).any()  # (minimal: m.eval(n, n) > 0, grad NaN)
-    assert np.isfinite(out["gwo"]).all() and np.isfinite(out["gwi"]).all()
-
-
 @pytest.mark.parametrize("name,dtn", matrix("below_surface", sorted(STOCHASTIC), dtypes=["f64"]))
 def test_stochastic_eval_with_error_zero_below_surface(name, dtn):
     """The estimate and its error are 0 wherever eval is (a direction below the surface: once 0.024)."""

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._dataerr import data_error
-from .._math import COS_EPS, cosine_hemisphere
+from .._math import COS_EPS, cosine_hemisphere, normalize, safe_atan2, safe_sqrt
 from ..errors import ParameterError
 from ..io.merl import RES as _MERL_RES
 from ..io.merl import MerlBRDF, read_merl
@@ -44,15 +44,10 @@ def _const(x):
 
 def _elevation(d):
     """acos(d_z) for unit d, accurate near the pole: 2 asin(|d - z| / 2)."""
-    dist = jnp.sqrt(d[..., 0] ** 2 + d[..., 1] ** 2 + (d[..., 2] - 1) ** 2)
-    return 2 * jnp.arcsin(jnp.clip(0.5 * dist, 0, 1))
-
-
-def _safe_normalize(v):
-    n = jnp.linalg.norm(v, axis=-1, keepdims=True)
-    ok = n > 0
-    up = jnp.zeros_like(v).at[..., 2].set(1)
-    return jnp.where(ok, v / jnp.where(ok, n, 1), up)
+    # double where: finite gradients at the pole (sqrt) and at the antipode (asin' = inf at 1)
+    half = 0.5 * safe_sqrt(d[..., 0] ** 2 + d[..., 1] ** 2 + (d[..., 2] - 1) ** 2)
+    inner = half < 1
+    return 2 * jnp.where(inner, jnp.arcsin(jnp.where(inner, half, 0)), jnp.pi / 2)
 
 
 def _reflect(w, m):
@@ -284,7 +279,7 @@ class _AbstractMeasured(AbstractBSDF):
 
 
 def _theta2u(t):
-    return jnp.sqrt(jnp.maximum(t, 0) * (2 / jnp.pi))
+    return safe_sqrt(t * (2 / jnp.pi))
 
 
 def _phi2u(p):
@@ -399,11 +394,11 @@ class MeasuredRGL(_AbstractMeasured):
     # ------------------------------------------------------------------------------------------
     def _angles(self, w):
         """(theta, phi) of the incidence direction and its unit coordinates u_w (N, 2)."""
-        theta, phi = _elevation(w), jnp.arctan2(w[:, 1], w[:, 0])
+        theta, phi = _elevation(w), safe_atan2(w[:, 1], w[:, 0])
         return theta, phi, jnp.stack([_theta2u(theta), _phi2u(phi)], 1)
 
     def _u_m(self, m, phi_inc):
-        theta_m, phi_m = _elevation(m), jnp.arctan2(m[:, 1], m[:, 0])
+        theta_m, phi_m = _elevation(m), safe_atan2(m[:, 1], m[:, 0])
         uy = _phi2u(phi_m - phi_inc if self.isotropic else phi_m)
         return jnp.stack([_theta2u(theta_m), uy - jnp.floor(uy)], 1)
 
@@ -419,7 +414,7 @@ class MeasuredRGL(_AbstractMeasured):
         incidence: ``(m, par, u_inc, u_m, sample, p_vndf)``: the incidence's warp parameters
         ``(phi, theta)`` and unit coordinates, ``m``'s unit coordinates, and the VNDF warp's
         inverse at them (the sample-space point and its density)."""
-        m = _safe_normalize(wo + wi)
+        m = normalize(wo + wi)
         theta, phi, u_inc = self._angles(incident)
         u_m = self._u_m(m, phi)
         sample, p_vndf = self.vndf.invert(u_m, (phi, theta))
@@ -457,7 +452,7 @@ class MeasuredRGL(_AbstractMeasured):
         phi_m = (2 * u_m[:, 1] - 1) * jnp.pi + (phi_o if self.isotropic else 0)
         st = jnp.sin(theta_m)
         m = jnp.stack([st * jnp.cos(phi_m), st * jnp.sin(phi_m), jnp.cos(theta_m)], 1)
-        wi = _safe_normalize(_reflect(wo, m))
+        wi = normalize(_reflect(wo, m))
         jac = self._jac(u_m, wo, m)
         pdf = p_vndf * p_lum / jnp.where(jac > 0, jac, 1)
         return self._flat_weighted(wo, wi, pdf, valid_reflection(wo, wi) & (jac > 0) & (pdf > 0))
@@ -476,18 +471,18 @@ def _rot_y(v, c, s):
 
 def _merl_coords(wo, wi):
     """Continuous cell coordinates (x_h, x_d, x_p) of MERL's grid (cell centres at integers)."""
-    h = _safe_normalize(wo + wi)
+    h = normalize(wo + wi)
     theta_h = _elevation(h)
-    rxy = jnp.sqrt(h[:, 0] ** 2 + h[:, 1] ** 2)
+    rxy = safe_sqrt(h[:, 0] ** 2 + h[:, 1] ** 2)
     has_az = rxy > 0
     cph = jnp.where(has_az, h[:, 0] / jnp.where(has_az, rxy, 1), 1)
     sph = jnp.where(has_az, h[:, 1] / jnp.where(has_az, rxy, 1), 0)
     # the difference vector: wi rotated by -phi_h about z, then by -theta_h about y
     d = _rot_y(_rot_z(wi, cph, -sph), h[:, 2], -rxy)
-    theta_d = _elevation(_safe_normalize(d))
-    phi_d = jnp.arctan2(d[:, 1], d[:, 0])
+    theta_d = _elevation(normalize(d))
+    phi_d = safe_atan2(d[:, 1], d[:, 0])
     nh, nd, npd = _MERL_RES
-    x_h = jnp.sqrt(theta_h / _HALF_PI) * nh - 0.5
+    x_h = safe_sqrt(theta_h / _HALF_PI) * nh - 0.5
     x_d = theta_d / _HALF_PI * nd - 0.5
     x_p = jnp.mod(phi_d, jnp.pi) / jnp.pi * npd - 0.5
     return x_h, x_d, x_p
@@ -688,12 +683,12 @@ class MeasuredMERL(_AbstractMeasured):
 
     def _pdf(self, wo, wi):
         ok = valid_reflection(wo, wi)
-        h = _safe_normalize(wo + wi)
+        h = normalize(wo + wi)
         # sin^2(theta_h / 2) without cancellation, and the polar band of MERL's sqrt spacing
         s = (h[:, 0] ** 2 + h[:, 1] ** 2) / (2 * (1 + h[:, 2]))
-        u = jnp.sqrt(2 * jnp.arcsin(jnp.sqrt(jnp.clip(s, 0, 1))) / _HALF_PI)
+        u = safe_sqrt(2 * jnp.arcsin(safe_sqrt(jnp.clip(s, 0, 1))) / _HALF_PI)
         band = jnp.clip(jnp.floor(u * self.n_theta_h), 0, self.n_theta_h - 1).astype(jnp.int32)
-        phi_rel = jnp.mod(jnp.arctan2(h[:, 1], h[:, 0]) - jnp.arctan2(wo[:, 1], wo[:, 0]), 2 * jnp.pi)
+        phi_rel = jnp.mod(safe_atan2(h[:, 1], h[:, 0]) - safe_atan2(wo[:, 1], wo[:, 0]), 2 * jnp.pi)
         cell = jnp.clip(jnp.floor(phi_rel / (2 * jnp.pi) * self.n_phi_h), 0, self.n_phi_h - 1).astype(jnp.int32)
         k0, t = self._slice_weights(wo)
         prob = _const(self.cell_prob)
@@ -721,10 +716,10 @@ class MeasuredMERL(_AbstractMeasured):
         c0, c1 = cond[rowc, cell], cond[rowc, cell + 1]
         r2 = jnp.clip((u2 - c0) / jnp.where(c1 > c0, c1 - c0, 1), 0, 1)
         s = _lerp(s_edges[band], s_edges[band + 1], r1)
-        phi = (cell + r2) * (2 * jnp.pi / nphi) + jnp.arctan2(wo[:, 1], wo[:, 0])
+        phi = (cell + r2) * (2 * jnp.pi / nphi) + safe_atan2(wo[:, 1], wo[:, 0])
         st = 2 * jnp.sqrt(jnp.maximum(s * (1 - s), 0))
         h = jnp.stack([st * jnp.cos(phi), st * jnp.sin(phi), 1 - 2 * s], 1)
-        wi_tab = _safe_normalize(_reflect(wo, h))
+        wi_tab = normalize(_reflect(wo, h))
         wi_cos = cosine_hemisphere(u1, u2)
         wi = jnp.where((u[:, 0] < c)[:, None], wi_cos, wi_tab)
         pdf = self._pdf(wo, wi)
