@@ -825,14 +825,12 @@ def _sheen_structure():
         alb, color, a = p
         return Sheen(Lambert(_a(alb, dt)), _a(color, dt), dt(a))
 
-    # Below alpha ~ 0.05 the sheen lobe's own albedo passes 1 towards grazing (1.9 at alpha = 0.01,
-    # mu = 0.01: an independent quadrature agrees), and the base's scaling 1 - max(c) E goes
-    # negative: eval < 0 for a bright sheen (a library bug, tests/test_catalogue.py,
-    # test_known_bug_sheen_narrow_bright). The narrow cases take sheen colours up to 0.45, which
-    # keep the scaling >= 0 (E <= 2.1).
+    # Below alpha ~ 0.06 the white lobe's own albedo passes 1 towards grazing (2.1 at alpha = 0.01):
+    # Sheen divides the lobe by it there and keeps the base's scaling >= 0 (once eval < 0 for a
+    # bright sheen): the narrow cases take white sheens too.
     dim = (0.0, 0.2, 0.45)
     cases = tuple((alb, c, a) for alb in (BLACK, WHITE) for c in (BLACK, WHITE, RAMP) for a in (0.3, 1.0))
-    cases += tuple((alb, c, a) for alb in (BLACK, WHITE) for c in (BLACK, dim) for a in (1e-8, 1e-4, 0.01, 0.05))
+    cases += tuple((alb, c, a) for alb in (BLACK, WHITE) for c in (BLACK, dim, WHITE) for a in (1e-8, 1e-4, 0.01, 0.05))
     # The sheen lobe is sampled from the cosine-weighted hemisphere: a sample's weight f pi / P
     # grows towards a grazing wo (~1e3 at mu_o = 1e-4 for alpha >= 0.05, 1e4 at alpha = 0.01) and
     # without bound as alpha -> 0, where D becomes a spike at the horizon (1e6 at alpha = 1e-4).

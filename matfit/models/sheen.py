@@ -119,14 +119,19 @@ class Sheen(AbstractBSDF):
     extension). The material is
 
     .. math::
-        f = c\,D\,V + s\,f_{base},\qquad s = 1 - \max_k c_k\,\max(E(\mu_o), E(\mu_i))
+        f = c\,\frac{D\,V}{\max(1, \bar E)} + s\,f_{base},\qquad
+        s = 1 - \max_k c_k\,\min(1, \bar E),\qquad \bar E = \max(E(\mu_o), E(\mu_i))
 
     with :math:`c` the sheen colour, :math:`E(\mu) = \int D\,V\cos\theta_i\,d\omega_i` the
-    sheen's directional albedo (white, tabulated over :math:`\sqrt\mu` and :math:`\alpha` by
+    white lobe's directional albedo (tabulated over :math:`\sqrt\mu` and :math:`\alpha` by
     quadrature, bilinear between: :func:`sheen_albedo`) and :math:`s` the energy-preserving
     albedo scaling of the base (the extension's, symmetric in the two directions: the model is
-    reciprocal when the base is). Its directional albedo is at most
-    :math:`\max_k c_k E(\mu_o) + (1 - \max_k c_k E(\mu_o))\,E_{base} \le 1`.
+    reciprocal when the base is). The fitted :math:`\Lambda` is not exact: below
+    :math:`\alpha \approx 0.06` the lobe's albedo passes 1 towards grazing (2.1 at
+    :math:`\alpha = 0.01`, :math:`\mu = 0.004`), and there the lobe is divided by
+    :math:`\bar E` (elsewhere nothing changes). The directional albedo is at most
+    :math:`\max_k c_k \min(1, E(\mu_o)) + (1 - \max_k c_k \min(1, E(\mu_o)))\,E_{base} \le 1`,
+    and :math:`f \ge 0`.
 
     Sampling: the sheen lobe by the cosine-weighted hemisphere with probability
     :math:`P = \bar c\,E(\mu_o)` (clamped to [0.05, 0.95]; 0 for a black sheen), the base's own
@@ -179,19 +184,20 @@ class Sheen(AbstractBSDF):
     def channels(self):
         return max(self.base.channels, channel_count(self.color))
 
-    def _scale(self, mu_o, mu_i):
-        """The base's scaling ``s`` (per pair)."""
-        e = jnp.maximum(sheen_albedo(mu_o, self.alpha), sheen_albedo(mu_i, self.alpha))
-        return 1 - jnp.max(self.color, axis=-1) * e
+    def _energy(self, mu_o, mu_i):
+        """``max(E(mu_o), E(mu_i))`` per pair (the lobe's normalization and the base's scaling)."""
+        return jnp.maximum(sheen_albedo(mu_o, self.alpha), sheen_albedo(mu_i, self.alpha))
 
     def eval(self, wo, wi):
         check_directions("Sheen.eval", wo=wo, wi=wi)
         pairs = SoAPairs.of(wo, wi)
         ok, mu_o, mu_i = pairs.valid, pairs.cos_o, pairs.cos_i
         # the pairs' cosines are mapped to the normal where a pair is invalid: finite everywhere
-        lobe = _lobe(jnp.where(ok, pairs.h.z, 0.0), mu_o, mu_i, self.alpha, jnp)
+        e = self._energy(mu_o, mu_i)
+        lobe = _lobe(jnp.where(ok, pairs.h.z, 0.0), mu_o, mu_i, self.alpha, jnp) / jnp.maximum(e, 1)
+        scale = 1 - jnp.max(self.color, axis=-1) * jnp.minimum(e, 1)
         # the base reads the pairs derived here (its own kernels, or its eval on rebuilt arrays)
-        f = self.color * lobe[..., None] + self._scale(mu_o, mu_i)[..., None] * self.base.eval_pairs(pairs)
+        f = self.color * lobe[..., None] + scale[..., None] * self.base.eval_pairs(pairs)
         return jnp.where(ok[..., None], f, 0)
 
     def _p_sheen(self, wo):
