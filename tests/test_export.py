@@ -285,6 +285,14 @@ def test_gltf_maps_a_sheen_over_lambert_exactly(x64):
                                np.asarray(model.eval(jnp.asarray(wo), jnp.asarray(wi))), rtol=1e-6, atol=1e-12)
 
 
+def test_gltf_marks_a_narrow_sheen_approximate(x64):
+    """Below alpha ~ 0.06 matfit normalizes the Charlie lobe where its albedo passes 1 and the
+    extension does not: the export says so (and stays exact at 0.07)."""
+    r = to_gltf(Sheen(Lambert([0.3, 0.05, 0.1]), [0.9, 0.4, 0.5], 0.05))
+    assert not r.exact and any("KHR_materials_sheen" in n for n in r.notes), r.notes
+    assert to_gltf(Sheen(Lambert([0.3, 0.05, 0.1]), [0.9, 0.4, 0.5], 0.07)).exact
+
+
 # -- pbrt-v4 ----------------------------------------------------------------------------------
 _TOKEN = re.compile(r'"[^"]*"|\[|\]|[^\s\[\]"]+')
 

@@ -10,7 +10,8 @@ the clear coat, a model with a thin-film lobe (:class:`~matfit.models.MultiLobe`
 iridescent dielectric (base colour, roughness, ior, the film's index and thickness, started from
 the film lobe's), anything else by the general metallic-roughness material. A
 :class:`~matfit.models.Sheen` is KHR_materials_sheen over its base's glTF material: the sheen
-maps exactly (colour, ``sheenRoughnessFactor = sqrt(alpha)``), the base as it does alone.
+maps exactly (colour, ``sheenRoughnessFactor = sqrt(alpha)``; approximately below alpha ~ 0.06,
+where matfit normalizes the lobe and the extension does not), the base as it does alone.
 
 Roughness: ``roughnessFactor = sqrt(alpha)`` (glTF squares it), likewise for the clear coat.
 """
@@ -24,7 +25,7 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..fresnel import FILM_ETA_RANGE, FILM_THICKNESS_RANGE, fresnel_conductor
-from ..models import GltfPBR, Lambert, Layered, MultiLobe, Plastic, RoughConductor, Sheen, SmoothConductor
+from ..models import GltfPBR, Lambert, Layered, MultiLobe, Plastic, RoughConductor, Sheen, SmoothConductor, sheen_albedo
 from ._model_file import plain_numbers
 from ._fidelity import fit_target, measure
 from ._result import ExportResult, ParamMapping, check_model, rgb
@@ -160,6 +161,13 @@ def gltf_target(model):
         # as the base does
         base, exact, _, notes = gltf_target(model.base)
         t = Sheen(base, model.color, model.alpha)
+        mu = np.linspace(0.0, 1.0, 65) ** 2
+        if float(np.max(sheen_albedo(mu[:, None], np.ravel(np.asarray(model.alpha))[None, :]))) > 1:
+            # matfit divides the lobe by its albedo where that passes 1 (alpha < ~0.06); the
+            # extension's formula does not (it creates energy at grazing there)
+            exact = False
+            notes = notes + ["a sheen narrower than alpha ~ 0.06: KHR_materials_sheen's lobe reflects more than it "
+                             "receives at grazing there, where matfit's is normalized; the sheen maps approximately"]
         return t, exact, None if exact else measure(model, t), notes
     if isinstance(model, Lambert):
         return GltfPBR(_rgb(model.reflectance), 0.0, 1.0, specular=0.0), True, None, []
