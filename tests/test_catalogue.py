@@ -121,7 +121,7 @@ def test_sampling_matches_pdf(case):
 
 
 # ------------------------------------------------------------------------------------------------
-# 3. known library bugs (minimal reproductions)
+# 3. library bugs the catalogue found, fixed (minimal reproductions)
 # ------------------------------------------------------------------------------------------------
 def test_narrow_bright_sheen_creates_no_energy(x64):
     """Below alpha ~ 0.06 the white Charlie lobe's albedo E passes 1 towards grazing (2.1 at alpha =

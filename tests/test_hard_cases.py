@@ -505,6 +505,16 @@ def test_pdf_integral(name, dtn):
 # Library bugs the matrix found, fixed (StochasticLayered.eval_with_error below the surface; the
 # measured models' direction gradients at h = n and wo = -wi are in test_finite_gradients)
 # --------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("name,dtn", matrix("normal_pair", ["measured_merl", "measured_rgl"], dtypes=["f64"]))
+def test_measured_direction_gradients_at_the_normal(name, dtn):
+    """The pair wo == wi == n (h == n, once NaN gradients) is among the hard pairs, with a value
+    > 0, so that test_finite_gradients checks the measured models' gradients there."""
+    out, inp = results(name, dtn)
+    normal = np.all(inp["wo"] == [0, 0, 1], axis=-1) & np.all(inp["wi"] == [0, 0, 1], axis=-1)
+    assert normal.any() and (out["f"][:, normal] > 0).any()
+    assert np.isfinite(out["gwo"][:, normal]).all() and np.isfinite(out["gwi"][:, normal]).all()
+
+
 @pytest.mark.parametrize("name,dtn", matrix("below_surface", sorted(STOCHASTIC), dtypes=["f64"]))
 def test_stochastic_eval_with_error_zero_below_surface(name, dtn):
     """The estimate and its error are 0 wherever eval is (a direction below the surface: once 0.024)."""

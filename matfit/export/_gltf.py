@@ -25,7 +25,7 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..fresnel import FILM_ETA_RANGE, FILM_THICKNESS_RANGE, fresnel_conductor
-from ..models import GltfPBR, Lambert, Layered, MultiLobe, Plastic, RoughConductor, Sheen, SmoothConductor, sheen_albedo
+from ..models import GltfPBR, Lambert, Layered, MultiLobe, Plastic, RoughConductor, Sheen, SmoothConductor
 from ._model_file import plain_numbers
 from ._fidelity import fit_target, measure
 from ._result import ExportResult, ParamMapping, check_model, rgb
@@ -161,10 +161,8 @@ def gltf_target(model):
         # as the base does
         base, exact, _, notes = gltf_target(model.base)
         t = Sheen(base, model.color, model.alpha)
-        mu = np.linspace(0.0, 1.0, 65) ** 2
-        if float(np.max(sheen_albedo(mu[:, None], np.ravel(np.asarray(model.alpha))[None, :]))) > 1:
-            # matfit divides the lobe by its albedo where that passes 1 (alpha < ~0.06); the
-            # extension's formula does not (it creates energy at grazing there)
+        if model.normalized():
+            # the extension's formula does not normalize the lobe (it creates energy at grazing there)
             exact = False
             notes = notes + ["a sheen narrower than alpha ~ 0.06: KHR_materials_sheen's lobe reflects more than it "
                              "receives at grazing there, where matfit's is normalized; the sheen maps approximately"]

@@ -184,6 +184,11 @@ class Sheen(AbstractBSDF):
     def channels(self):
         return max(self.base.channels, channel_count(self.color))
 
+    def normalized(self) -> bool:
+        """True when the lobe's albedo passes 1 at some cosine (alpha below ~0.06), where it is divided by it."""
+        # the bilinear table's maximum over the cosines lies on its nodes
+        return bool(np.max(sheen_albedo(_MU_GRID[:, None], np.ravel(np.asarray(self.alpha))[None, :])) > 1)
+
     def _energy(self, mu_o, mu_i):
         """``max(E(mu_o), E(mu_i))`` per pair (the lobe's normalization and the base's scaling)."""
         return jnp.maximum(sheen_albedo(mu_o, self.alpha), sheen_albedo(mu_i, self.alpha))

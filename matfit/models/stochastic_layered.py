@@ -186,20 +186,25 @@ class StochasticLayered(AbstractBSDF):
         c_b = beta_v * base.eval(wo_base, om) * self._atten(om) * (eta2 * mu_i * mis_b)[..., None] * W_l
         return c_a + jnp.where(ok_l[..., None], c_b, 0)
 
+    def _walks(self, owner, wo, wi, key):
+        """The walks' ``f cos`` samples ``(n_samples, ..., C)``, the valid-pair mask ``(..., 1)`` and
+        ``cos(theta_i)`` (1 where invalid)."""
+        check_directions(owner, wo=wo, wi=wi)
+        key = jax.random.PRNGKey(0) if key is None else key
+        wo = jnp.asarray(wo)
+        wi = jnp.asarray(wi)
+        ok = valid_reflection(wo, wi)[..., None]
+        return self._walk(wo, wi, key, energy=False), ok, jnp.where(ok, wi[..., 2:3], 1)
+
     def eval(self, wo, wi, key=None):
         """Unbiased estimate of ``f`` from ``n_samples`` walks (0 unless a reflection pair above the surface)."""
-        return self.eval_with_error(wo, wi, key)[0]
+        c, ok, mu_i = self._walks("StochasticLayered.eval", wo, wi, key)
+        return jnp.where(ok, jnp.mean(c, axis=0) / mu_i, 0)
 
     def eval_with_error(self, wo, wi, key=None):
         """``(estimate, stderr)``: the estimate of :meth:`eval` and its standard error, ``(..., C)`` each
         (both 0 unless a reflection pair above the surface)."""
-        check_directions("StochasticLayered.eval", wo=wo, wi=wi)
-        key = jax.random.PRNGKey(0) if key is None else key
-        wo = jnp.asarray(wo)
-        wi = jnp.asarray(wi)
-        c = self._walk(wo, wi, key, energy=False)
-        ok = valid_reflection(wo, wi)[..., None]
-        mu_i = jnp.where(ok, wi[..., 2:3], 1)
+        c, ok, mu_i = self._walks("StochasticLayered.eval_with_error", wo, wi, key)
         return (jnp.where(ok, jnp.mean(c, axis=0) / mu_i, 0),
                 jnp.where(ok, jnp.std(c, axis=0) / jnp.sqrt(self.n_samples) / mu_i, 0))
 
