@@ -653,6 +653,22 @@ def _blend_structure():
                      resolved=lambda p: p[1] >= 0.3)
 
 
+def _rotated_structure():
+    # an anisotropic GGX conductor turned about the normal: the hard widths (0 along one axis, a
+    # spike against a wide lobe) at angles 0, a quarter turn, a half turn (the same lobe) and
+    # one far outside [-pi, pi]
+    def build(dt, p):
+        from matfit.models import Rotated, RoughConductor
+
+        (a, ay), (eta, k), phi = p
+        return Rotated(RoughConductor(dt(a), _a(eta, dt), _a(k, dt), alpha_y=dt(ay)), dt(phi))
+
+    al = [(0.05, 0.4), (0.0, 0.5), (1e-8, 2.0), (0.5, 0.5)]
+    cases = tuple((a, c, phi) for a in al for c in COND3 for phi in (0.0, 0.7, np.pi / 2, np.pi, -40.0))
+    return Structure("rotated_anisotropic_conductor", "Rotated", cases, build, Z_REFL, frozenset({REFLECTION}),
+                     resolved=lambda p: _alpha_min(*p[0]) >= 0.3)
+
+
 def _stochastic_layered_structure():
     # StochasticLayered is an evaluation reference: a Monte Carlo estimate of eval by random walks
     # (a fixed key: deterministic, so the cases still stack and vmap), without pdf or sampler
@@ -935,7 +951,7 @@ def _structures():
     out += [_rough_conductor_structure(d) for d in DISTRIBUTIONS]
     out += [_rough_dielectric_structure(d) for d in ("ggx", "beckmann")]
     out += [_smooth_conductor_structure(), _smooth_dielectric_structure(), _plastic_structure(False),
-            _plastic_structure(True), _coated_structure(), _layered_structure(), _blend_structure(),
+            _plastic_structure(True), _coated_structure(), _layered_structure(), _blend_structure(), _rotated_structure(),
             _stochastic_layered_structure(), _gltf_structure(),
             _diffuse_specular_structure(), _tabulated_structure(), _multi_lobe_structure(),
             _specular_lobe_structure(), _sheen_structure(), _rgl_structure(), _merl_structure()]

@@ -14,6 +14,7 @@ from .multi_lobe import MultiLobe, SpecularLobe
 from .plastic import Plastic
 from .rough_conductor import RoughConductor
 from .rough_dielectric import RoughDielectric
+from .rotated import Rotated
 from .sheen import Sheen, sheen_albedo
 from .smooth_conductor import SmoothConductor
 from .smooth_dielectric import SmoothDielectric
@@ -32,6 +33,7 @@ __all__ = [
     "Layered",
     "CoatedConductor",
     "Blend",
+    "Rotated",
     "DiffuseSpecular",
     "GltfPBR",
     "MeasuredMERL",

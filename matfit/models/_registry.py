@@ -25,6 +25,7 @@ from .multi_lobe import MultiLobe, SpecularLobe
 from .plastic import Plastic
 from .rough_conductor import RoughConductor
 from .rough_dielectric import RoughDielectric
+from .rotated import Rotated
 from .sheen import Sheen
 from .smooth_conductor import SmoothConductor
 from .smooth_dielectric import SmoothDielectric
@@ -45,6 +46,7 @@ _ENTRIES = (
     (Layered, (_DOC, _SCENE)),
     (CoatedConductor, (_SCENE,)),  # a factory of a Layered, which a document holds as such
     (Blend, (_DOC, _SCENE)),
+    (Rotated, (_DOC, _SCENE)),
     (StochasticLayered, (_DOC,)),
     (GltfPBR, (_DOC,)),
     (DiffuseSpecular, (_DOC,)),
