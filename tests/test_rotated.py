@@ -131,7 +131,7 @@ def test_sampling_matches_pdf(case):
 def test_bad_input_named():
     with pytest.raises(ParameterError, match="Rotated: base"):
         Rotated("ggx", 0.3)
-    with pytest.raises(ParameterError, match="Rotated: angle must be finite"):
+    with pytest.raises(ParameterError, match="Rotated: parameter 'angle' must be finite"):
         Rotated(Lambert(0.5), np.nan)
     with pytest.raises(ParameterError, match="Rotated.eval"):
         Rotated(Lambert(0.5), 0.1).eval(jnp.array([0.0, 0.0, 2.0]), jnp.array([0.0, 0.0, 1.0]))

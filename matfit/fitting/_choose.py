@@ -17,7 +17,9 @@ r"""Which family: cheap cues of the data pick the candidates, the rendered image
 2. **Candidates**: ``lambert``, ``plastic``, ``lobes1`` and ``lobes2`` always; ``lobes3`` with a
    second lobe; ``car_paint`` with a coloured highlight or a colour change; ``film`` (a thin-film
    lobe) with a colour change; ``sheen`` with a grazing excess that the backward rows show too;
-   ``conductor`` with a coloured highlight or a dark floor (specular ratio above 50).
+   ``conductor`` with a coloured highlight or a dark floor (specular ratio above 50);
+   ``conductor_aniso`` (brushed metal) with an azimuthal dependence over a dark floor, measured in
+   two planes of incidence or more.
 3. **Judge**: every candidate is fitted, rendered beside the measurement under each lighting of
    :data:`~matfit.appearance.JUDGE_LIGHTS` and scored by
    :math:`s = \max_\text{lights}\max(\text{FLIP}/0.05,\ \text{CIEDE2000}/1.5)`: :math:`s \le 1`
@@ -154,7 +156,8 @@ def appearance_cues(table):
     dict
         Each cue's value (``specular_ratio``, ``highlight_saturation``, ``colour_spread``,
         ``grazing_ratio``, ``grazing_back_ratio`` (over the backward grazing rows only),
-        ``lobe_misfit``, ``azimuthal_spread``; NaN where the table has too few rows for it) and the
+        ``lobe_misfit``, ``azimuthal_spread``; NaN where the table has too few rows for it),
+        ``incidence_planes`` (planes of incidence with rows: 15-degree bins of the light's azimuth) and the
         booleans ``second_lobe``, ``coloured_highlight``, ``colour_shift``, ``grazing_excess``,
         ``azimuthal``, ``dark_floor``.
 
@@ -230,6 +233,14 @@ def appearance_cues(table):
                 spreads.append(float(np.std(res)))
     if spreads:
         c["azimuthal_spread"] = float(np.median(spreads))
+    # planes of incidence (15-degree bins of the light's azimuth, modulo 180, with 3 rows or more):
+    # a table measured in one plane (an isotropic RGL file's) cannot tell an anisotropic lobe from
+    # masking narrowing an isotropic one along that plane
+    wi = np.asarray(table.wi, float)[ok]
+    tilted = wi[:, 2] < 0.99
+    az = np.degrees(np.arctan2(wi[tilted, 1], wi[tilted, 0]))
+    bins = np.mod(np.floor((np.mod(az, 180.0) + 7.5) / 15.0), 12).astype(int)  # 0 and 180 deg: one bin
+    c["incidence_planes"] = int(np.sum(np.bincount(bins, minlength=12) >= 3)) if bins.size else 0
     L = CUE_LINES
     c.update(second_lobe=bool(c["lobe_misfit"] > L["second_lobe"]),
              coloured_highlight=bool(c["highlight_saturation"] > L["coloured_highlight"]),
@@ -268,6 +279,8 @@ def candidates_for(cues):
         out["sheen"] = "an excess at grazing angles, backward as well as forward (a sheen)"
     if cues.get("dark_floor") or cues.get("coloured_highlight"):
         out["conductor"] = "a dark floor under a strong peak" if cues.get("dark_floor") else "a coloured highlight"
+    if _anisotropic_metal(cues):
+        out["conductor_aniso"] = "an azimuthal dependence under a dark floor (a brushed metal)"
     from .families import FAMILIES
     from .params import Parametrization
 
@@ -283,6 +296,11 @@ _FORWARD_GRAZING = {
             "excess, so not a sheen lobe)",
     "unknown": "an excess at forward grazing angles (a grazing Fresnel rise, a wide forward lobe or a sheen lobe: "
                "the table holds no backward grazing rows to tell them apart)"}
+
+
+def _anisotropic_metal(cues):
+    """An azimuthal dependence of a peak over a dark floor: the anisotropic conductor's."""
+    return bool(cues.get("azimuthal")) and bool(cues.get("dark_floor")) and cues.get("incidence_planes", 0) >= 2
 
 
 def _backward_grazing(cues):
@@ -301,6 +319,8 @@ def _missing(cues):
                 continue  # the sheen family carries it
             back = cues.get("grazing_back_ratio", np.nan)
             text = _FORWARD_GRAZING["none" if np.isfinite(back) else "unknown"]
+        elif k == "azimuthal" and _anisotropic_metal(cues):
+            continue  # the anisotropic conductor carries it
         out.append(text)
     return out
 

@@ -19,7 +19,8 @@ import numpy as np
 from ..errors import ParameterError
 from ._compose import METAL_ETA_RANGE, METAL_K_RANGE, Lobe, LobeRefine, LobeSpec, lobe_layout
 from ._conductor_guess import refine_conductor
-from ..models import CoatedConductor, DiffuseSpecular, Lambert, Plastic, RoughConductor, RoughDielectric, Sheen
+from ._aniso_guess import refine_anisotropic
+from ..models import CoatedConductor, DiffuseSpecular, Lambert, Plastic, Rotated, RoughConductor, RoughDielectric, Sheen
 
 __all__ = ["Param", "TruthMap", "Family", "FAMILIES", "family_describing", "get_family", "Lobe", "compose_family",
            "reduced_family", "REDUCE_TOL", "check_param_value", "METAL_ETA_RANGE", "METAL_K_RANGE", "DEFAULT_FAMILY",
@@ -528,6 +529,16 @@ FAMILIES["film"] = compose_family(
     "film", [Lobe("ggx", "thin_film"), Lobe("ggx", "schlick")], base=None, tied=("ks_1",),
     doc="GGX lobe with a thin-film Fresnel (iridescence: thickness_1, film_eta_1 on eta_1) over a wide coloured "
         "GGX lobe (Schlick f0_2, per-channel ks_2)")
+# brushed metal: an anisotropic GGX conductor turned about the normal (its widths and angle read
+# from the shape of the measured peak, the index as the isotropic conductor's)
+FAMILIES["conductor_aniso"] = Family(
+    "conductor_aniso",
+    (_alpha("GGX width along the lobe's x axis"), _alpha("GGX width along its y axis", name="alpha_y"),
+     Param("angle", -np.pi, np.pi, False, "azimuth of the lobe's x axis (radians; + pi: the same lobe)", generic=0.0))
+    + _METAL,
+    lambda p, C: Rotated(RoughConductor(p["alpha"], p["eta"], p["k"], alpha_y=p["alpha_y"]), p["angle"]),
+    "anisotropic rough conductor (GGX, separable Smith) turned by an angle: brushed metal",
+    refine=refine_anisotropic(refine_conductor("ggx")))
 FAMILIES["metal2"] = compose_family(
     "metal2", [Lobe("ggx", "conductor")] * 2, base=None, weights="mixture", share=("eta", "k"),
     doc="rough conductor with two GGX widths mixed (one complex index)")

@@ -24,10 +24,9 @@ tangent (docs/export.md).
 from __future__ import annotations
 
 import jax.numpy as jnp
-import numpy as np
 
 from ._base import AbstractBSDF
-from ._params import _concrete, as_param, check_directions, check_u
+from ._params import as_param, check_directions, check_range, check_u
 from ..errors import ParameterError
 
 __all__ = ["Rotated"]
@@ -66,11 +65,9 @@ class Rotated(AbstractBSDF):
     def __init__(self, base, angle):
         if not isinstance(base, AbstractBSDF):
             raise ParameterError(f"Rotated: base must be a matfit model, got {type(base).__name__}")
-        a = as_param(angle)
-        if _concrete(a) and not np.all(np.isfinite(np.asarray(a))):
-            raise ParameterError(f"Rotated: angle must be finite (radians), got {angle!r}")
+        check_range("Rotated", "angle", angle)  # finite (radians), any value
         self.base = base
-        self.angle = a
+        self.angle = as_param(angle)
 
     @property
     def channels(self):
