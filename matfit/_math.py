@@ -295,6 +295,12 @@ def up_like(v):
     return jnp.zeros_like(v).at[..., 2].set(1)
 
 
+def turn_about_z(w, c, s):
+    """``w`` (..., 3) turned about +z by the angle of cosine ``c`` and sine ``s`` (batch shapes broadcast)."""
+    x, y = w[..., 0], w[..., 1]
+    return jnp.stack(jnp.broadcast_arrays(c * x - s * y, s * x + c * y, w[..., 2]), axis=-1)
+
+
 def mirror(w):
     """``(-w_x, -w_y, w_z)``: ``w`` reflected about the normal ``(0, 0, 1)``, a perfect mirror's direction."""
     return w * jnp.array([-1, -1, 1], w.dtype)

@@ -694,20 +694,22 @@ def _stochastic_layered_structure():
 def _gltf_structure():
     # With the film (has_film: a static choice made when iridescence is given as anything but the
     # number 0) in every case, iridescence 0 among them: the film's path computes everything the
-    # path without it does, and the film's hard values (thickness 0, film index 1) with it.
+    # path without it does, and the film's hard values (thickness 0, film index 1) with it; likewise
+    # the anisotropic lobe (has_anisotropy), strength 0 among the cases.
     def build(dt, p):
         from matfit.models import GltfPBR
 
-        base, metal, alpha, ior, spec, cc, cca, (w, ieta, d) = p
+        base, metal, alpha, ior, spec, cc, cca, (w, ieta, d), (an, rot) = p
         return _cast(GltfPBR(_a(base, dt), metallic=_a(metal, dt), alpha=_a(alpha, dt), ior=_a(ior, dt),
                              specular=_a(spec[0], dt), specular_color=_a(spec[1], dt), clearcoat=_a(cc, dt),
                              clearcoat_alpha=_a(cca, dt), iridescence=_a(w, dt), iridescence_ior=_a(ieta, dt),
-                             iridescence_thickness=_a(d, dt)), dt)
+                             iridescence_thickness=_a(d, dt), anisotropy=_a(an, dt), anisotropy_rotation=_a(rot, dt)),
+                     dt)
 
-    base = (RGB, 0.5, 0.25, 1.5, (1.0, WHITE), 0.0, 0.01, (0.0, 1.3, 400.0))
+    base = (RGB, 0.5, 0.25, 1.5, (1.0, WHITE), 0.0, 0.01, (0.0, 1.3, 400.0), (0.0, 0.0))
 
     def vary(**kw):
-        keys = ("base", "metal", "alpha", "ior", "spec", "cc", "cca", "irid")
+        keys = ("base", "metal", "alpha", "ior", "spec", "cc", "cca", "irid", "aniso")
         return tuple(kw.get(k, v) for k, v in zip(keys, base))
 
     cases = [vary(base=b, metal=m) for b in (BLACK, WHITE, RAMP) for m in (0.0, 1.0)]
@@ -719,6 +721,8 @@ def _gltf_structure():
     cases += [vary(irid=(w, e, d)) for w in (0.5, 1.0) for e, d in ((1.3, 0.0), (1.0, 400.0), (2.0, 1000.0),
                                                                    (2.0, 250.0))]
     cases += [vary(irid=(1.0, 1.8, 300.0), ior=e, alpha=a) for e in (1.0, 4.0) for a in (1e-8, 1.0)]
+    cases += [vary(aniso=(an, r), alpha=a, metal=m) for an in (0.5, 1.0) for r in (0.0, 2.0, -40.0)
+              for a, m in ((1e-8, 1.0), (0.3, 0.0))]
     # Not reciprocal with a clear coat: the coat's Fresnel reads the viewing angle (cos theta_o), as
     # KHR_materials_clearcoat specifies; without one, every Fresnel term reads |wo.h| = |wi.h|.
     return Structure("gltf_pbr", "GltfPBR", tuple(cases), build, Z_REFL, frozenset({REFLECTION}),

@@ -1,5 +1,6 @@
 """glTF 2.0: a material of the metallic-roughness model with KHR_materials_ior,
-KHR_materials_specular, KHR_materials_clearcoat and KHR_materials_iridescence.
+KHR_materials_specular, KHR_materials_clearcoat, KHR_materials_iridescence and
+KHR_materials_anisotropy.
 
 A glTF material is :class:`~matfit.models.GltfPBR`. A Lambertian model maps exactly (metallic 0,
 specular factor 0); a :class:`~matfit.models.GltfPBR` maps exactly; every other model is
@@ -8,7 +9,11 @@ a conductor by a metal (F0 colour and roughness: Schlick's Fresnel cannot follow
 index), a plastic by a dielectric (base colour, roughness, ior), a coated metal by a metal under
 the clear coat, a model with a thin-film lobe (:class:`~matfit.models.MultiLobe`) by an
 iridescent dielectric (base colour, roughness, ior, the film's index and thickness, started from
-the film lobe's), anything else by the general metallic-roughness material. A
+the film lobe's), an anisotropic conductor turned by an angle (:class:`~matfit.models.Rotated`)
+by an anisotropic metal (F0 colour, roughness, ``anisotropyStrength`` and ``anisotropyRotation``,
+started from ``alpha_b`` the narrow width and ``alpha_t = alpha_b + (1 - alpha_b) strength^2``
+the wide one, rotated to the wide axis), anything else by the general metallic-roughness
+material. A
 :class:`~matfit.models.Sheen` is KHR_materials_sheen over its base's glTF material: the sheen
 maps exactly (colour, ``sheenRoughnessFactor = sqrt(alpha)``; approximately below alpha ~ 0.06,
 where matfit normalizes the lobe and the extension does not), the base as it does alone.
@@ -25,13 +30,13 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..fresnel import FILM_ETA_RANGE, FILM_THICKNESS_RANGE, fresnel_conductor
-from ..models import GltfPBR, Lambert, Layered, MultiLobe, Plastic, RoughConductor, Sheen, SmoothConductor
+from ..models import GltfPBR, Lambert, Layered, MultiLobe, Plastic, Rotated, RoughConductor, Sheen, SmoothConductor
 from ._model_file import plain_numbers
 from ._fidelity import fit_target, measure
 from ._result import ExportResult, ParamMapping, check_model, rgb
 
 EXTENSIONS = ("KHR_materials_ior", "KHR_materials_specular", "KHR_materials_clearcoat", "KHR_materials_iridescence",
-              "KHR_materials_sheen")
+              "KHR_materials_sheen", "KHR_materials_anisotropy")
 
 
 def _rgb(x):
@@ -64,6 +69,11 @@ def families():
                                                   iridescence_ior=p["iridescence_ior"],
                                                   iridescence_thickness=p["iridescence_thickness"]),
                              "glTF iridescent dielectric"),
+        "anisotropic_metal": Family(
+            "gltf_anisotropic_metal", (col, a, Param("anisotropy", 0.0, 1.0, False, "anisotropyStrength"),
+                                       Param("anisotropy_rotation", -np.pi, np.pi, False, "anisotropyRotation (rad)")),
+            lambda p, C: GltfPBR(p["base_color"], 1.0, p["alpha"], anisotropy=p["anisotropy"],
+                                 anisotropy_rotation=p["anisotropy_rotation"]), "glTF anisotropic metal"),
         "general": Family("gltf_general", (col, Param("metallic", 0.0, 1.0, False, "metallic"), a),
                           lambda p, C: GltfPBR(p["base_color"], p["metallic"], p["alpha"]), "glTF metallic-roughness"),
     }
@@ -73,8 +83,22 @@ def _f0(eta, k):
     return np.clip(np.asarray(fresnel_conductor(jnp.ones(()), jnp.asarray(eta), jnp.asarray(k))), 0.01, 0.99)
 
 
+def _anisotropic_start(alpha, alpha_y, angle):
+    """glTF's alpha (the narrow width), strength and rotation (of the wide axis) of GGX widths
+    ``alpha`` along the lobe's x axis at azimuth ``angle`` and ``alpha_y`` across it."""
+    a_t, a_b, rot = (alpha, alpha_y, angle) if alpha >= alpha_y else (alpha_y, alpha, angle + np.pi / 2)
+    a_b = float(np.clip(a_b, 3e-3, 0.99))
+    strength = float(np.sqrt(np.clip((min(a_t, 1.0) - a_b) / (1 - a_b), 1e-4, 0.999)))
+    return a_b, strength, float(np.angle(np.exp(1j * rot)))  # rotation in (-pi, pi]
+
+
 def _plan(model):
     fam = families()
+    if isinstance(model, Rotated) and isinstance(model.base, RoughConductor):
+        c = model.base
+        a_b, s, r = _anisotropic_start(_f(c.alpha), _f(c.alpha if c.alpha_y is None else c.alpha_y), _f(model.angle))
+        return fam["anisotropic_metal"], {"base_color": _f0(c.eta, c.k), "alpha": a_b, "anisotropy": s,
+                                          "anisotropy_rotation": r}
     if isinstance(model, RoughConductor):
         return fam["metal"], {"base_color": _f0(model.eta, model.k), "alpha": float(np.clip(np.asarray(model.alpha), 3e-3, 0.99))}
     if isinstance(model, Plastic):
@@ -119,6 +143,9 @@ def gltf_parameters(m):
         d = _f(m.iridescence_thickness)
         ext["KHR_materials_iridescence"] = {"iridescenceFactor": _f(m.iridescence), "iridescenceIor": _f(m.iridescence_ior),
                                             "iridescenceThicknessMinimum": d, "iridescenceThicknessMaximum": d}
+    if m.has_anisotropy and _f(m.anisotropy) > 0:
+        ext["KHR_materials_anisotropy"] = {"anisotropyStrength": _f(m.anisotropy),
+                                           "anisotropyRotation": _f(m.anisotropy_rotation)}
     return {"name": "matfit", "pbrMetallicRoughness": pbr, "extensions": ext}
 
 
@@ -144,6 +171,12 @@ def _mapping(mat, source, exact, note=""):
                 ParamMapping("KHR_materials_iridescence.iridescenceThicknessMaximum", c["iridescenceThicknessMaximum"],
                              source.get("iridescence_thickness", "iridescence_thickness (nm; minimum the same)"),
                              exact, note)]
+    if "KHR_materials_anisotropy" in ext:
+        c = ext["KHR_materials_anisotropy"]
+        out += [ParamMapping("KHR_materials_anisotropy.anisotropyStrength", c["anisotropyStrength"],
+                             source.get("anisotropy", "anisotropy"), exact, note),
+                ParamMapping("KHR_materials_anisotropy.anisotropyRotation", c["anisotropyRotation"],
+                             source.get("anisotropy_rotation", "anisotropy_rotation (rad)"), exact, note)]
     if "KHR_materials_sheen" in ext:
         c = ext["KHR_materials_sheen"]
         out += [ParamMapping("KHR_materials_sheen.sheenColorFactor", c["sheenColorFactor"], "sheen color", exact, note),
@@ -220,6 +253,6 @@ def to_gltf(model) -> ExportResult:
     lambert = isinstance(model, Lambert) or (isinstance(model, Sheen) and isinstance(model.base, Lambert))
     src = {"base": "albedo", "metallic": "0", "specular": "0 (no specular layer)"} if lambert else (
         {} if exact else {k: "fitted" for k in ("base", "metallic", "alpha", "ior", "specular", "iridescence_ior",
-                                                "iridescence_thickness")})
+                                                "iridescence_thickness", "anisotropy", "anisotropy_rotation")})
     mapping = _mapping(mat, src, exact, "" if exact else "fitted to the model over the hemisphere")
     return ExportResult("gltf", doc, mapping, t, fid, notes)

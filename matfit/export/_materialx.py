@@ -6,7 +6,9 @@ A Lambertian model maps exactly (``base`` 1, ``base_color`` = albedo, ``specular
 (:mod:`matfit.export._gltf`), whose parameters standard_surface shares: ``base_color``,
 ``metalness``, ``specular``, ``specular_color``, ``specular_roughness = sqrt(alpha)``,
 ``specular_IOR``, ``coat``, ``coat_roughness``, ``coat_IOR = 1.5``, for a thin film
-``thin_film_thickness`` (nm) and ``thin_film_IOR``, and for a :class:`~matfit.models.Sheen`
+``thin_film_thickness`` (nm) and ``thin_film_IOR``, for an anisotropic lobe
+``specular_anisotropy`` and ``specular_rotation`` (:func:`anisotropic_roughness`; OpenPBR:
+``specular_roughness_anisotropy``, its rotation left to the tangent), and for a :class:`~matfit.models.Sheen`
 ``sheen`` 1, ``sheen_color``, ``sheen_roughness = sqrt(alpha)`` (OpenPBR: ``fuzz_*``). standard_surface layers its
 lobes with its own energy-conserving albedo scaling and its metal Fresnel from the artistic
 (F0, edge colour) parametrization, so those mappings are approximate; the fidelity reported is
@@ -48,14 +50,39 @@ SURFACES = {
                              specular_roughness="specular_roughness", specular_ior="specular_IOR", coat="coat",
                              coat_roughness="coat_roughness", coat_ior="coat_IOR", thin_film_weight=None,
                              thin_film_thickness="thin_film_thickness", thin_film_ior="thin_film_IOR", per_nm=1.0,
-                             sheen="sheen", sheen_color="sheen_color", sheen_roughness="sheen_roughness"),
+                             sheen="sheen", sheen_color="sheen_color", sheen_roughness="sheen_roughness",
+                             specular_anisotropy="specular_anisotropy", specular_rotation="specular_rotation"),
     "open_pbr_surface": dict(base="base_weight", base_color="base_color", diffuse_roughness="base_diffuse_roughness",
                              metalness="base_metalness", specular="specular_weight", specular_color="specular_color",
                              specular_roughness="specular_roughness", specular_ior="specular_ior", coat="coat_weight",
                              coat_roughness="coat_roughness", coat_ior="coat_ior", thin_film_weight="thin_film_weight",
                              thin_film_thickness="thin_film_thickness", thin_film_ior="thin_film_ior", per_nm=1e-3,
-                             sheen="fuzz_weight", sheen_color="fuzz_color", sheen_roughness="fuzz_roughness"),
+                             sheen="fuzz_weight", sheen_color="fuzz_color", sheen_roughness="fuzz_roughness",
+                             specular_anisotropy="specular_roughness_anisotropy", specular_rotation=None),
 }
+
+
+def anisotropic_roughness(surface, alpha_t, alpha_b):
+    """The ``(specular_roughness, anisotropy)`` of ``surface`` whose lobe has GGX widths
+    ``alpha_t`` along the tangent and ``alpha_b <= alpha_t`` across it: standard_surface's
+    ``alpha_t = r^2 / sqrt(1 - a)``, ``alpha_b = r^2 sqrt(1 - a)`` (MaterialX's
+    ``mx_roughness_anisotropy``); OpenPBR's ``alpha_t = r^2 sqrt(2 / (1 + (1 - a)^2))``,
+    ``alpha_b = (1 - a) alpha_t``.
+
+    Parameters
+    ----------
+    surface : {"standard_surface", "open_pbr_surface"}
+    alpha_t, alpha_b : float
+
+    Returns
+    -------
+    tuple of float
+    """
+    a = 1.0 - alpha_b / alpha_t
+    if surface == "standard_surface":
+        return float((alpha_t * alpha_b) ** 0.25), float(a)
+    return float(np.sqrt(alpha_t / np.sqrt(2.0 / (1.0 + (1.0 - a) ** 2)))), float(a)
+
 
 
 def _surface_document(model, surface, owner, fmt):
@@ -97,7 +124,22 @@ def _surface_document(model, surface, owner, fmt):
         put("metalness", g.metallic, "metallic", False, note)
         put("specular", g.specular, "specular", False, note)
         put("specular_color", rgb(owner, g.specular_color), "specular_color", False, note)
-        put("specular_roughness", np.sqrt(np.asarray(g.alpha, float)), "sqrt(alpha)", False, note)
+        if g.has_anisotropy and float(np.asarray(g.anisotropy)) > 0:
+            # the glTF lobe's widths: alpha across the wide axis, alpha + (1 - alpha) strength^2 along it
+            a_b = float(np.asarray(g.alpha))
+            a_t = a_b + (1 - a_b) * float(np.asarray(g.anisotropy)) ** 2
+            r, a = anisotropic_roughness(surface, a_t, a_b)
+            put("specular_roughness", r, "from alpha_t, alpha_b (anisotropic_roughness)", False, note)
+            put("specular_anisotropy", a, "1 - alpha_b / alpha_t", False, note)
+            turn = float(np.asarray(g.anisotropy_rotation))
+            if names["specular_rotation"]:
+                put("specular_rotation", np.mod(turn / (2 * np.pi), 1.0), "anisotropy_rotation / 2 pi (turns)", False,
+                    note)
+            else:
+                notes = list(notes) + [f"{surface} has no rotation input: turn its geometry_tangent by "
+                                       f"{turn:.4f} rad about the normal for the wide axis"]
+        else:
+            put("specular_roughness", np.sqrt(np.asarray(g.alpha, float)), "sqrt(alpha)", False, note)
         put("specular_ior", g.ior, "ior", False, note)
         if float(np.asarray(g.clearcoat)) > 0:
             put("coat", g.clearcoat, "clearcoat", False, note)

@@ -1,13 +1,13 @@
 """glTF 2.0 metallic-roughness material: the BRDF of the glTF specification (Appendix B) with the
-KHR_materials_ior, KHR_materials_specular, KHR_materials_clearcoat and KHR_materials_iridescence
-extensions."""
+KHR_materials_ior, KHR_materials_specular, KHR_materials_clearcoat, KHR_materials_iridescence and
+KHR_materials_anisotropy extensions."""
 
 from __future__ import annotations
 
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._math import cosine_hemisphere, normalize
+from .._math import cosine_hemisphere, normalize, turn_about_z
 from ._base import AbstractBSDF
 from ._pairs import SoAPairs
 from ..microfacet import MASKING_FORMS
@@ -50,6 +50,11 @@ class GltfPBR(AbstractBSDF):
     Belcour & Barla 2017). The metal part keeps Schlick's Fresnel (the extension's film over a
     metal is not modelled).
 
+    With anisotropy (KHR_materials_anisotropy, strength :math:`a`, rotation :math:`r`) the
+    specular lobe is an anisotropic GGX of widths :math:`\alpha_t = \alpha + (1 - \alpha)\,a^2`
+    along the direction at azimuth :math:`r` of the tangent frame and :math:`\alpha_b = \alpha`
+    across it (:class:`~matfit.models.Rotated`); the coat stays isotropic.
+
     Sampling: a mixture of the cosine-weighted hemisphere, the specular lobe's visible normals
     and the coat lobe's, picked with probabilities proportional to ``(1 - m) / 2``,
     ``(1 + m) / 2`` and ``w_c / 2``; the pdf is the exact mixture.
@@ -78,6 +83,10 @@ class GltfPBR(AbstractBSDF):
         Index :math:`\eta_i` of the thin film (``iridescenceIor``).
     iridescence_thickness : array_like, scalar or (...), default 400.0; >= 0; differentiable
         Film thickness :math:`d_i` in nm (``iridescenceThicknessMaximum``, no thickness texture).
+    anisotropy : array_like, scalar or (...), default 0.0; [0, 1]; differentiable
+        Anisotropy strength :math:`a` (``anisotropyStrength``).
+    anisotropy_rotation : array_like, scalar or (...), default 0.0; radians; differentiable
+        Azimuth :math:`r` of the wide axis from the tangent (``anisotropyRotation``).
     masking : {"height_correlated", "separable"}, default "height_correlated"; static, not differentiable
         Smith form of both lobes; the default is the specification's visibility term
         ``V_GGX = 1 / (2 (|n.l| sqrt(a^2 + (1 - a^2)(n.v)^2) + |n.v| sqrt(a^2 + (1 - a^2)(n.l)^2)))``.
@@ -116,10 +125,14 @@ class GltfPBR(AbstractBSDF):
     # factor given as anything but the number 0), so that a glTF material without the extension
     # never pays for the 81-wavelength film, traced or not
     has_film: bool = eqx.field(static=True)
+    anisotropy: jnp.ndarray
+    anisotropy_rotation: jnp.ndarray
+    # likewise: a material without KHR_materials_anisotropy evaluates the isotropic lobe alone
+    has_anisotropy: bool = eqx.field(static=True)
 
     def __init__(self, base_color, metallic=0.0, alpha=0.25, ior=1.5, specular=1.0, specular_color=1.0, clearcoat=0.0,
                  clearcoat_alpha=0.01, masking="height_correlated", iridescence=0.0, iridescence_ior=1.3,
-                 iridescence_thickness=400.0):
+                 iridescence_thickness=400.0, anisotropy=0.0, anisotropy_rotation=0.0):
         check_range("GltfPBR", "base_color", base_color, 0.0, 1.0)
         check_range("GltfPBR", "metallic", metallic, 0.0, 1.0)
         check_range("GltfPBR", "alpha", alpha, 0.0, lo_open=True)
@@ -131,6 +144,8 @@ class GltfPBR(AbstractBSDF):
         check_range("GltfPBR", "iridescence", iridescence, 0.0, 1.0)
         check_range("GltfPBR", "iridescence_ior", iridescence_ior, 1.0)
         check_range("GltfPBR", "iridescence_thickness", iridescence_thickness, 0.0)
+        check_range("GltfPBR", "anisotropy", anisotropy, 0.0, 1.0)
+        check_range("GltfPBR", "anisotropy_rotation", anisotropy_rotation)
         check_channels("GltfPBR", base_color=base_color, specular_color=specular_color)
         check_choice("GltfPBR", "masking", masking, MASKING_FORMS)
         self.base_color = base_color
@@ -147,6 +162,10 @@ class GltfPBR(AbstractBSDF):
         self.iridescence_ior = as_param(iridescence_ior)
         self.iridescence_thickness = as_param(iridescence_thickness)
         self.masking = masking
+        self.has_anisotropy = not (isinstance(anisotropy, (int, float)) and not isinstance(anisotropy, bool)
+                                   and anisotropy == 0)
+        self.anisotropy = as_param(anisotropy)
+        self.anisotropy_rotation = as_param(anisotropy_rotation)
 
     @property
     def channels(self):
@@ -156,12 +175,27 @@ class GltfPBR(AbstractBSDF):
         # the Fresnel-free GGX lobe D G2 / (4 cos cos) and its sampler, shared with RoughConductor
         return RoughConductor(alpha, 1.0, 0.0, masking=self.masking)
 
+    def _specular(self):
+        """The specular lobe and the turn ``(cos r, sin r)`` into its frame (None: isotropic)."""
+        if not self.has_anisotropy:
+            return self._lobe(self.alpha), None
+        a_t = self.alpha + (1 - self.alpha) * self.anisotropy ** 2
+        lobe = RoughConductor(a_t, 1.0, 0.0, masking=self.masking, alpha_y=self.alpha)
+        return lobe, (jnp.cos(self.anisotropy_rotation), jnp.sin(self.anisotropy_rotation))
+
+    @staticmethod
+    def _into(w, turn):
+        """``w`` in the specular lobe's frame."""
+        return w if turn is None else turn_about_z(w, turn[0], -turn[1])
+
     def eval(self, wo, wi):
         check_directions("GltfPBR.eval", wo=wo, wi=wi)
         pairs = SoAPairs.of(wo, wi)
         ok, cos_o = pairs.valid, pairs.cos_o
         vh = pairs.fresnel_angle().c[..., None]
-        spec = self._lobe(self.alpha).reflection_lobe(pairs)[..., None]
+        lobe, turn = self._specular()
+        spec = lobe.reflection_lobe(pairs if turn is None else SoAPairs.of(self._into(wo, turn),
+                                                                            self._into(wi, turn)))[..., None]
         c = self.base_color
         f0 = ((self.ior - 1) / (self.ior + 1)) ** 2
         ws = self.specular[..., None]
@@ -191,7 +225,8 @@ class GltfPBR(AbstractBSDF):
     def pdf(self, wo, wi):
         check_directions("GltfPBR.pdf", wo=wo, wi=wi)
         pd, ps, pc = self._probs()
-        return (pd * cosine_pdf(wo, wi) + ps * self._lobe(self.alpha).reflection_pdf(wo, wi)
+        lobe, turn = self._specular()
+        return (pd * cosine_pdf(wo, wi) + ps * lobe.reflection_pdf(self._into(wo, turn), self._into(wi, turn))
                 + pc * self._lobe(self.clearcoat_alpha).reflection_pdf(wo, wi))
 
     def sample(self, wo, u):
@@ -199,7 +234,10 @@ class GltfPBR(AbstractBSDF):
         check_u("GltfPBR.sample", u, 3)
         pd, ps, _ = self._probs()
         wi_d = cosine_hemisphere(u[..., 1], u[..., 2])
-        wi_s = self._lobe(self.alpha).reflection_sample(wo, u[..., 1:3])
+        lobe, turn = self._specular()
+        wi_s = lobe.reflection_sample(self._into(wo, turn), u[..., 1:3])
+        if turn is not None:
+            wi_s = turn_about_z(wi_s, turn[0], turn[1])
         wi_c = self._lobe(self.clearcoat_alpha).reflection_sample(wo, u[..., 1:3])
         u0 = u[..., 0][..., None]
         wi = jnp.where(u0 < pd[..., None], wi_d, jnp.where(u0 < (pd + ps)[..., None], wi_s, wi_c))

@@ -25,17 +25,12 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
+from .._math import turn_about_z
 from ._base import AbstractBSDF
 from ._params import as_param, check_directions, check_range, check_u
 from ..errors import ParameterError
 
 __all__ = ["Rotated"]
-
-
-def _turn(w, c, s):
-    """``w`` (..., 3) rotated about z by the angle of cosine ``c`` and sine ``s`` (batch shapes)."""
-    x, y = w[..., 0], w[..., 1]
-    return jnp.stack(jnp.broadcast_arrays(c * x - s * y, s * x + c * y, w[..., 2]), axis=-1)
 
 
 class Rotated(AbstractBSDF):
@@ -88,7 +83,7 @@ class Rotated(AbstractBSDF):
 
     def _into(self, w):
         """``w`` in the base's frame (turned by ``-angle``)."""
-        return _turn(w, jnp.cos(self.angle), -jnp.sin(self.angle))
+        return turn_about_z(w, jnp.cos(self.angle), -jnp.sin(self.angle))
 
     def eval(self, wo, wi):
         check_directions("Rotated.eval", wo=wo, wi=wi)
@@ -102,7 +97,7 @@ class Rotated(AbstractBSDF):
         check_directions("Rotated.sample", wo=wo)
         check_u("Rotated.sample", u, 3)
         wi, weight, pdf = self.base.sample(self._into(wo), u)
-        return _turn(wi, jnp.cos(self.angle), jnp.sin(self.angle)), weight, pdf
+        return turn_about_z(wi, jnp.cos(self.angle), jnp.sin(self.angle)), weight, pdf
 
     def energy_factor(self, wo, wi):
         return self.base.energy_factor(self._into(wo), self._into(wi))
