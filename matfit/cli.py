@@ -18,7 +18,7 @@ truth when the table is synthetic) and, with ``--report``, writes a report (``ma
 (``matfit.fitting.select``).
 
 ``matfit fit TABLE --model plastic --export gltf paint.gltf`` also writes the material for a renderer
-(``mitsuba``, ``mitsuba-xml``, ``pbrt``, ``gltf``, ``mtlx``, ``openpbr``; ``matfit.export``) and prints how exactly each
+(``mitsuba``, ``mitsuba-xml``, ``pbrt``, ``gltf``, ``mtlx``, ``openpbr``, ``usd``; ``matfit.export``) and prints how exactly each
 parameter maps; ``--save-model FIT.json`` keeps the model, and ``matfit export FIT.json --to pbrt -o m.pbrt``
 or ``matfit render FIT.json --env sky -o sphere.png`` use it later (a report's ``model.json`` too).
 

@@ -8,6 +8,7 @@ from ._fidelity import fit_target, measure
 from ._gltf import to_gltf
 from ._materialx import to_materialx, to_openpbr
 from ._pbrt import to_pbrt
+from ._usd import to_usd
 from ._result import ExportResult, ParamMapping, check_model, reject_tabulated
 
 
@@ -91,7 +92,7 @@ def to_mitsuba_xml(model) -> ExportResult:
 
 #: Target name -> exporter.
 EXPORTERS = {"mitsuba": to_mitsuba, "mitsuba-xml": to_mitsuba_xml, "pbrt": to_pbrt, "gltf": to_gltf,
-             "mtlx": to_materialx, "openpbr": to_openpbr}
+             "mtlx": to_materialx, "openpbr": to_openpbr, "usd": to_usd}
 
 
 def export(model, to) -> ExportResult:
@@ -100,7 +101,7 @@ def export(model, to) -> ExportResult:
     Parameters
     ----------
     model : matfit.models.AbstractBSDF
-    to : {"mitsuba", "mitsuba-xml", "pbrt", "gltf", "mtlx", "openpbr"}
+    to : {"mitsuba", "mitsuba-xml", "pbrt", "gltf", "mtlx", "openpbr", "usd"}
 
     Returns
     -------
