@@ -2,8 +2,11 @@
 
 The default (``lm_fd``) is tested in depth elsewhere (test_fit_lm_fd.py, test_stable_fits.py);
 here every entry of :data:`matfit.fitting.METHODS` runs the same ``fit`` call on a rough
-conductor (7 parameters, per-channel index) and a plastic (5 parameters, a coat over a diffuse
-base), from the default data-driven starts, and must end at the truth."""
+conductor (7 parameters, per-channel index) and a diffuse-plus-specular material (7 parameters:
+a Lambertian albedo beside a GGX lobe with a per-channel Schlick F0), from the default
+data-driven starts, and must end at the truth; the default method and the undamped one (from a
+near start) also on a plastic (5 parameters, a coat over a diffuse base). (Every method on the
+plastic compiled its solver for 10-40 s each, 185 s in all, against 29 s on diffuse_specular.)"""
 
 import jax.numpy as jnp
 import numpy as np
@@ -12,14 +15,18 @@ import pytest
 from testdata import random_pairs
 from matfit import Table
 from matfit.fitting import METHODS, fit
-from matfit.models import Plastic, RoughConductor
+from matfit.models import DiffuseSpecular, Plastic, RoughConductor
 
 TRUTHS = {
     "conductor": ({"alpha": 0.3, "eta": [0.2, 0.9, 1.4], "k": [3.6, 2.5, 1.9]},
                   lambda p: RoughConductor(p["alpha"], jnp.asarray(p["eta"]), jnp.asarray(p["k"]))),
     "plastic": ({"albedo": [0.6, 0.3, 0.1], "alpha": 0.2, "eta": 1.6},
                 lambda p: Plastic(jnp.asarray(p["albedo"]), p["alpha"], p["eta"])),
+    "diffuse_specular": ({"albedo": [0.6, 0.3, 0.1], "f0": [0.04, 0.05, 0.06], "alpha": 0.2},
+                         lambda p: DiffuseSpecular(jnp.asarray(p["albedo"]), jnp.asarray(p["f0"]), p["alpha"])),
 }
+#: Each method on these two; the default also on the plastic.
+METHOD_FAMILIES = ("conductor", "diffuse_specular")
 
 
 def _table(family, n=96, seed=0):
@@ -43,8 +50,8 @@ def _assert_recovered(r, truth, what):
         np.testing.assert_allclose(got, want, rtol=2e-3, err_msg=f"{what}: {name}")
 
 
-@pytest.mark.parametrize("family", sorted(TRUTHS))
-@pytest.mark.parametrize("method", sorted(METHODS))
+@pytest.mark.parametrize("method, family", [(m, f) for m in sorted(METHODS) for f in METHOD_FAMILIES]
+                         + [("lm_fd", "plastic")])
 def test_every_method_recovers_a_noise_free_material(method, family, x64):
     table, truth = _table(family)
     r = fit(table, model=family, method=method, starts=2, max_steps=500)
