@@ -291,6 +291,9 @@ def test_gltf_marks_a_narrow_sheen_approximate(x64):
     r = to_gltf(Sheen(Lambert([0.3, 0.05, 0.1]), [0.9, 0.4, 0.5], 0.05))
     assert not r.exact and any("KHR_materials_sheen" in n for n in r.notes), r.notes
     assert to_gltf(Sheen(Lambert([0.3, 0.05, 0.1]), [0.9, 0.4, 0.5], 0.07)).exact
+    # the fidelity is measured against the extension's own (unnormalized) lobe: not 0
+    narrow = to_gltf(Sheen(Lambert([0.3, 0.05, 0.1]), [0.9, 0.4, 0.5], 0.02))
+    assert not narrow.model.normalize and narrow.fidelity.relative_rmse > 0.01, narrow.fidelity
 
 
 # -- pbrt-v4 ----------------------------------------------------------------------------------

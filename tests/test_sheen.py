@@ -209,3 +209,18 @@ def test_model_file_round_trip(x64, rng):
     wo, wi = C.random_pairs(rng, 50, 0.05)
     assert type(back) is Sheen and type(back.base) is RoughConductor
     np.testing.assert_allclose(np.asarray(back.eval(j(wo), j(wi))), np.asarray(m.eval(j(wo), j(wi))), rtol=1e-12)
+
+
+def test_unnormalized_sheen_is_the_extension_formula(x64):
+    """normalize=False (the glTF stand-in): the lobe D V undivided and the scaling 1 - max(c) E_bar
+    unclamped; equal to the normalized model wherever the lobe's albedo stays below 1."""
+    wo, wi = (jnp.asarray(x) for x in C.random_pairs(np.random.default_rng(3), 300, min_cos=0.002))
+    for a in (0.3, 1.0):
+        np.testing.assert_allclose(Sheen(Lambert(j(BASE)), j(COLOR), a, normalize=False).eval(wo, wi),
+                                   Sheen(Lambert(j(BASE)), j(COLOR), a).eval(wo, wi), rtol=1e-12)
+    white = Sheen(Lambert(1.0), 1.0, 0.01, normalize=False)
+    graze = jnp.array([[0.0, 0.9999, 0.01]]) / jnp.linalg.norm(jnp.array([0.0, 0.9999, 0.01]))
+    up = jnp.array([[0.0, 0.0, 1.0]])
+    assert float(white.eval(graze, up)[0, 0]) < 0 <= float(Sheen(Lambert(1.0), 1.0, 0.01).eval(graze, up)[0, 0])
+    with pytest.raises(ParameterError, match="normalize must be True or False"):
+        Sheen(Lambert(1.0), 1.0, 0.3, normalize="yes")

@@ -193,7 +193,8 @@ def gltf_target(model):
         # KHR_materials_sheen is this model over the glTF BRDF: the sheen maps exactly, the base
         # as the base does
         base, exact, _, notes = gltf_target(model.base)
-        t = Sheen(base, model.color, model.alpha)
+        # the extension's own formula (no normalization): what a viewer renders, measured below
+        t = Sheen(base, model.color, model.alpha, normalize=False)
         if model.normalized():
             # the extension's formula does not normalize the lobe (it creates energy at grazing there)
             exact = False

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
@@ -146,6 +147,10 @@ class Sheen(AbstractBSDF):
     alpha : array_like, scalar or (...), default 0.3; > 0 and <= 1; differentiable
         The sheen's width :math:`\alpha`. It is glTF's ``sheenRoughness`` squared; the albedo
         table reads it clamped to :data:`SHEEN_ALPHA_MIN`.
+    normalize : bool, default True; static, not differentiable
+        Divide the lobe by :math:`\max(1, \bar E)` and clamp the scaling's :math:`\bar E` at 1;
+        False gives KHR_materials_sheen's own formula (the glTF exporter's stand-in), which below
+        :math:`\alpha \approx 0.06` reflects more than it receives and may go negative.
 
     References
     ----------
@@ -166,8 +171,9 @@ class Sheen(AbstractBSDF):
     base: AbstractBSDF
     color: jnp.ndarray
     alpha: jnp.ndarray
+    normalize: bool = eqx.field(static=True)
 
-    def __init__(self, base, color, alpha=0.3):
+    def __init__(self, base, color, alpha=0.3, normalize=True):
         owner = "Sheen"
         if not isinstance(base, AbstractBSDF):
             raise ParameterError(f"{owner}: base must be a matfit model, got {type(base).__name__}")
@@ -179,6 +185,9 @@ class Sheen(AbstractBSDF):
         self.base = base
         self.color = as_channels(color)
         self.alpha = as_param(alpha)
+        if not isinstance(normalize, bool):
+            raise ParameterError(f"{owner}: normalize must be True or False, got {normalize!r}")
+        self.normalize = normalize
 
     @property
     def channels(self):
@@ -199,8 +208,10 @@ class Sheen(AbstractBSDF):
         ok, mu_o, mu_i = pairs.valid, pairs.cos_o, pairs.cos_i
         # the pairs' cosines are mapped to the normal where a pair is invalid: finite everywhere
         e = self._energy(mu_o, mu_i)
-        lobe = _lobe(jnp.where(ok, pairs.h.z, 0.0), mu_o, mu_i, self.alpha, jnp) / jnp.maximum(e, 1)
-        scale = 1 - jnp.max(self.color, axis=-1) * jnp.minimum(e, 1)
+        lobe = _lobe(jnp.where(ok, pairs.h.z, 0.0), mu_o, mu_i, self.alpha, jnp)
+        if self.normalize:
+            lobe, e = lobe / jnp.maximum(e, 1), jnp.minimum(e, 1)
+        scale = 1 - jnp.max(self.color, axis=-1) * e
         # the base reads the pairs derived here (its own kernels, or its eval on rebuilt arrays)
         f = self.color * lobe[..., None] + scale[..., None] * self.base.eval_pairs(pairs)
         return jnp.where(ok[..., None], f, 0)
