@@ -23,12 +23,12 @@ import numpy as np
 from ..errors import ParameterError
 from ..fresnel import FILM_ETA_RANGE, FILM_THICKNESS_RANGE, fresnel_dielectric, fresnel_thin_film
 from ..microfacet import DISTRIBUTIONS, MASKING_FORMS
-from ..models import MultiLobe, SoAPairs, SpecularLobe
+from ..models import Layered, MultiLobe, RoughDielectric, SoAPairs, SpecularLobe
 from ..models.multi_lobe import FRESNEL_KINDS, FRESNEL_PARAMS
 from ._film_guess import FILM_GENERIC, film_candidates
 
 __all__ = ["Lobe", "Slot", "LobeSpec", "LobeRefine", "lobe_layout", "WEIGHT_MODES", "SHAREABLE", "METAL_ETA_RANGE",
-           "METAL_K_RANGE"]
+           "METAL_K_RANGE", "COAT_SLOTS"]
 
 #: How the lobes are weighted: a per-channel weight each, a mixture (weights summing to 1), or 1.
 WEIGHT_MODES = ("channels", "mixture", "none")
@@ -130,12 +130,18 @@ def _fresnel_slot(kind, lobe, fresnel, per_channel, name, lobes):
     return Slot(name, kind, lobes, *METAL_K_RANGE, per_channel, "conductor extinction", 3.0)
 
 
-def lobe_layout(base, lobes, weights, ordered, share, tied):
+#: A coat's slots: (name, bounds, generic start, doc).
+COAT_SLOTS = (("alpha_coat", (1e-3, 1.0), 0.1, "coat GGX width"), ("eta_coat", (1.05, 2.5), 1.5, "coat index"))
+
+
+def lobe_layout(base, lobes, weights, ordered, share, tied, coat=False):
     """The :class:`Slot` of every parameter of a composed family, in the order of the unconstrained
     vector (the arguments are :func:`~matfit.fitting.compose_family`'s). Raises ParameterError for
     an unknown option, a shared parameter of lobes with different Fresnel terms or of one lobe only.
     """
     owner = "compose_family"
+    if not isinstance(coat, bool):
+        raise ParameterError(f"{owner}: coat must be True or False, got {coat!r}")
     if base not in ("lambert", None):
         raise ParameterError(f"{owner}: base must be 'lambert' or None, got {base!r}")
     if weights not in WEIGHT_MODES:
@@ -183,6 +189,8 @@ def lobe_layout(base, lobes, weights, ordered, share, tied):
             else:
                 name, users = f"{kind}_{i}", (j,)
             slots.append(_fresnel_slot(kind, lb, lb.fresnel, per_channel, name, users))
+    if coat:
+        slots += [Slot(n, n, (), lo, hi, False, doc, g) for n, (lo, hi), g, doc in COAT_SLOTS]
     names = [s.name for s in slots]
     for n in tied:
         if n not in names:
@@ -207,8 +215,11 @@ def _eta_from_reflectance(r0):
 @dataclass(frozen=True)
 class LobeSpec:
     """Everything a composed family knows (its base, lobes, weights, ordering, every parameter's
-    :class:`Slot` and the ``(name, values)`` pairs it holds fixed): the family's ``build`` (a call
-    gives the :class:`~matfit.models.MultiLobe` of ``values``, C channels) and its data-driven start.
+    :class:`Slot`, the ``(name, values)`` pairs it holds fixed and whether a rough dielectric coat
+    lies over the lobes): the family's ``build`` (a call gives the :class:`~matfit.models.MultiLobe`
+    of ``values``, C channels, or the :class:`~matfit.models.Layered` of the coat over it) and its
+    data-driven start (the coat's width and index start at the generic guess: the lobes' start
+    reads the peak as theirs).
     """
 
     base: Optional[str]
@@ -217,6 +228,7 @@ class LobeSpec:
     ordered: bool
     slots: tuple
     fixed: tuple = ()
+    coat: bool = False
 
     def _slot(self, kind, j):
         return next(s for s in self.slots if s.kind == kind and j in s.lobes)
@@ -278,6 +290,8 @@ class LobeSpec:
             lobes.append(SpecularLobe(alphas[j], lb.fresnel, w if self.weights == "channels" else jnp.asarray(w)[..., None],
                                       distribution=lb.distribution, masking=lb.masking, **fres))
         albedo = p["albedo"] if self.base == "lambert" else 0.0
+        if self.coat:
+            return Layered(RoughDielectric(p["alpha_coat"], p["eta_coat"]), MultiLobe(albedo, lobes))
         return MultiLobe(albedo, lobes)
 
     # ---------------------------------------------------------------------------------------------

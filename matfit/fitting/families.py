@@ -210,7 +210,7 @@ def family_describing(spec):
 
 
 def compose_family(name, lobes, base="lambert", weights="channels", ordered=True, share=(), tied=(), fixed=None,
-                   bounds=None, starts=None, doc="") -> Family:
+                   bounds=None, starts=None, doc="", coat=False) -> Family:
     """Declare a family of a Lambertian base plus microfacet lobes (:class:`~matfit.models.MultiLobe`).
 
     The family's parameters, their bounds, generic starts, report names, the build of the model
@@ -238,6 +238,8 @@ def compose_family(name, lobes, base="lambert", weights="channels", ordered=True
     k_j[C]         (0, 12)               a conductor lobe's extinction
     thickness_j    (0, 1000)             a thin-film lobe's film thickness (nm)
     film_eta_j     (1, 2.6)              a thin-film lobe's film index
+    alpha_coat     (1e-3, 1)             the coat's GGX width (``coat=True``)
+    eta_coat       (1.05, 2.5)           the coat's index (``coat=True``)
     =============  ====================  ================================================================
 
     Parameters
@@ -272,6 +274,10 @@ def compose_family(name, lobes, base="lambert", weights="channels", ordered=True
         Constant starting values replacing the data-driven ones (:attr:`Family.starts`).
     doc : str, default ""
         One line for reports (default: a description of the lobes).
+    coat : bool, default False
+        A rough dielectric coat over the base and lobes (:class:`~matfit.models.Layered`, Weidlich
+        and Wilkie's single scattering): ``alpha_coat`` and ``eta_coat``; the lobes' indices are
+        then relative to the coat.
 
     Returns
     -------
@@ -313,7 +319,7 @@ def compose_family(name, lobes, base="lambert", weights="channels", ordered=True
             raise ParameterError(f"{owner}: {what} must be a sequence of parameter names, got {v!r}")
     if not isinstance(ordered, bool):
         raise ParameterError(f"{owner}: ordered must be True or False, got {ordered!r}")
-    slots = lobe_layout(base, lobes, weights, ordered, tuple(share), tuple(tied))
+    slots = lobe_layout(base, lobes, weights, ordered, tuple(share), tuple(tied), coat)
     by_name = {s.name: s for s in slots}
     for what, m in (("fixed", fixed), ("bounds", bounds), ("starts", starts)):
         if m is not None and not isinstance(m, Mapping):
@@ -355,10 +361,11 @@ def compose_family(name, lobes, base="lambert", weights="channels", ordered=True
         raise ParameterError(f"{owner}: {e}") from None
     fixed_names = {n for n, _ in fixed_items}
     params = tuple(p for p in every if p.name not in fixed_names)
-    spec = LobeSpec(base, lobes, weights, ordered, slots, tuple(sorted(fixed_items)))
+    spec = LobeSpec(base, lobes, weights, ordered, slots, tuple(sorted(fixed_items)), coat)
     if not doc:
         kinds = ", ".join(f"{lb.distribution}/{lb.fresnel}" for lb in lobes)
-        doc = f"{'Lambertian base plus ' if base else ''}{len(lobes)} microfacet lobe(s) ({kinds}), weights {weights}"
+        doc = (f"{'Lambertian base plus ' if base else ''}{len(lobes)} microfacet lobe(s) ({kinds}), weights {weights}"
+               f"{', under a rough coat' if coat else ''}")
     return Family(name, params, spec, doc, starts=dict(starts or {}), refine=LobeRefine(spec))
 
 
@@ -579,3 +586,15 @@ def check_param_value(p, channels, what, v):
         want = f"a scalar or {channels} values (one per channel)" if p.per_channel else "a scalar"
         raise ParameterError(f"{where}: expected {want}, found shape {a.shape}")
     return v
+
+
+# lobes under a coat: a plastic whose base has a glossy lobe of its own (a varnish over a satin
+# paint), and a car paint whose metal has two roughness scales
+# (the base lobe's Schlick F0 is held at 1: under the coat the refracted directions stay inside the
+# critical cone, where Schlick's term hardly varies, and a fit identifies only ks * F0)
+FAMILIES["coated_lobes1"] = compose_family(
+    "coated_lobes1", [Lobe("ggx", "schlick")], coat=True, fixed={"f0_1": 1.0},
+    doc="Lambertian albedo plus a GGX lobe (per-channel weight ks, no Fresnel of its own) under a rough clear coat")
+FAMILIES["car_paint2"] = compose_family(
+    "car_paint2", [Lobe("ggx", "conductor")] * 2, base=None, weights="mixture", share=("eta", "k"), coat=True,
+    doc="rough conductor with two GGX widths mixed (one complex index) under a rough clear coat")
