@@ -93,3 +93,13 @@ def test_choice_by_appearance_returns_the_anisotropic_family():
     assert choice.chosen == "conductor_aniso" and result.appearance.looks_alike, choice.summary()
     rows = {r["family"]: r for r in choice.rows}
     assert rows["conductor"]["score"] > 1 >= rows["conductor_aniso"]["score"]
+
+
+def test_one_plane_azimuthal_dependence_is_not_called_anisotropy():
+    from matfit.fitting._choose import _missing
+
+    one = _missing({"azimuthal": True, "dark_floor": True, "incidence_planes": 1})
+    assert len(one) == 1 and "cannot tell them apart" in one[0]
+    assert _missing({"azimuthal": True, "dark_floor": False, "incidence_planes": 3}) == [
+        "an azimuthal dependence (anisotropy)"]
+    assert _missing({"azimuthal": True, "dark_floor": True, "incidence_planes": 3}) == []  # conductor_aniso's

@@ -290,6 +290,9 @@ def candidates_for(cues):
 #: What a cue says no registered family carries (a grazing excess backward as well as forward
 #: is the sheen family's).
 _MISSING = {"grazing_excess": "", "azimuthal": "an azimuthal dependence (anisotropy)"}
+#: An azimuthal dependence in a table measured in one plane of incidence (an isotropic RGL file).
+_ONE_PLANE = ("an azimuthal dependence in one plane of incidence (anisotropy, or masking narrowing an isotropic "
+              "lobe along that plane: the table cannot tell them apart)")
 #: The grazing excess when the backward grazing rows show none, or the table holds none.
 _FORWARD_GRAZING = {
     "none": "an excess at forward grazing angles only (a grazing Fresnel rise or a wide forward lobe; no backward "
@@ -321,6 +324,8 @@ def _missing(cues):
             text = _FORWARD_GRAZING["none" if np.isfinite(back) else "unknown"]
         elif k == "azimuthal" and _anisotropic_metal(cues):
             continue  # the anisotropic conductor carries it
+        elif k == "azimuthal" and cues.get("incidence_planes", 2) < 2:
+            text = _ONE_PLANE
         out.append(text)
     return out
 
