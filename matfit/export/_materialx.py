@@ -125,9 +125,7 @@ def _surface_document(model, surface, owner, fmt):
         put("specular", g.specular, "specular", False, note)
         put("specular_color", rgb(owner, g.specular_color), "specular_color", False, note)
         if g.has_anisotropy and float(np.asarray(g.anisotropy)) > 0:
-            # the glTF lobe's widths: alpha across the wide axis, alpha + (1 - alpha) strength^2 along it
-            a_b = float(np.asarray(g.alpha))
-            a_t = a_b + (1 - a_b) * float(np.asarray(g.anisotropy)) ** 2
+            a_t, a_b = (float(np.asarray(w)) for w in g.anisotropic_widths())
             r, a = anisotropic_roughness(surface, a_t, a_b)
             put("specular_roughness", r, "from alpha_t, alpha_b (anisotropic_roughness)", False, note)
             put("specular_anisotropy", a, "1 - alpha_b / alpha_t", False, note)

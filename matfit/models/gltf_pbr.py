@@ -175,12 +175,16 @@ class GltfPBR(AbstractBSDF):
         # the Fresnel-free GGX lobe D G2 / (4 cos cos) and its sampler, shared with RoughConductor
         return RoughConductor(alpha, 1.0, 0.0, masking=self.masking)
 
+    def anisotropic_widths(self):
+        """``(alpha_t, alpha_b)``: the specular lobe's GGX widths along and across the anisotropy direction."""
+        return self.alpha + (1 - self.alpha) * self.anisotropy ** 2, self.alpha
+
     def _specular(self):
         """The specular lobe and the turn ``(cos r, sin r)`` into its frame (None: isotropic)."""
         if not self.has_anisotropy:
             return self._lobe(self.alpha), None
-        a_t = self.alpha + (1 - self.alpha) * self.anisotropy ** 2
-        lobe = RoughConductor(a_t, 1.0, 0.0, masking=self.masking, alpha_y=self.alpha)
+        a_t, a_b = self.anisotropic_widths()
+        lobe = RoughConductor(a_t, 1.0, 0.0, masking=self.masking, alpha_y=a_b)
         return lobe, (jnp.cos(self.anisotropy_rotation), jnp.sin(self.anisotropy_rotation))
 
     @staticmethod
